@@ -1,0 +1,333 @@
+"""The estimator: configuration, result, coarse-to-fine ``estimate_motion`` and ``track``.
+
+``estimate_motion(ref, cur, camera, config, key)`` returns ``T_cur_ref``: the
+4x4 rigid transform that maps a 3-D point in the *reference* camera's
+coordinates (the earlier frame) into the *current* camera's coordinates
+(``P_cur = T_cur_ref @ P_ref``, the paper's ``P' = T P``). ``track`` chains
+these into camera-to-world poses ``T_world_cam`` with
+``T_world_cur = T_world_ref @ inv(T_cur_ref)``, on the host in float64.
+
+Methods (``Config.method``):
+
+* ``"classic"``: plain least squares on the photometric residual (the paper's baseline);
+* ``"huber"``: IRLS with Huber weights (k = 1.345 sigma, sigma by MAD each round);
+* ``"ransac"``: the paper's RANSAC per pyramid level, then least squares on the consensus set.
+
+The whole estimate is one jit-compiled function per (image shape, static
+config); numeric config fields are traced, so ``jax.vmap`` over a field of
+``Config`` is a hyperparameter sweep compiled once.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Iterable, NamedTuple, Optional, Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxvo import geometry
+from jaxvo.camera import Camera
+from jaxvo.frame import Frame, validate_pair
+from jaxvo.pyramid import build_pyramid, num_levels_for
+from jaxvo.ransac import inliers, ransac_level
+from jaxvo.residuals import reference_points, residuals
+from jaxvo.solvers import irls, solve_pose
+
+__all__ = ["Config", "MotionEstimate", "estimate_motion", "track", "Track", "METHODS", "trace_count"]
+
+METHODS = ("classic", "huber", "ransac")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Estimator settings. Numeric fields are pytree leaves (traceable, vmappable);
+    fields marked *static* fix shapes or control flow and trigger a recompile when changed.
+
+    method: *static*, "classic" | "huber" | "ransac".
+    p, w: RANSAC success probability and assumed outlier fraction (k from p, w, n).
+    thresh_lum: inlier threshold on |luminance residual|, 0-255 units.
+    thresh_depth: inlier threshold on |depth residual|, metres.
+    early_exit_ratio: RANSAC stops once a hypothesis's inlier ratio exceeds it.
+    huber_k: Huber threshold in units of the MAD scale estimate.
+    max_depth: depth beyond this (metres) is ignored.
+    min_inlier_ratio: below this final inlier ratio the estimate is flagged invalid.
+    n_points: *static*, pixels per RANSAC sample (the paper's n = 6).
+    patch_radius: *static*, neighbourhood radius around each sampled pixel (1 -> 3x3).
+    max_hypotheses: *static*, hard cap on k per level.
+    batch_size: *static*, hypotheses solved together (vmapped) between early-exit checks.
+    num_levels: *static*, pyramid levels; None = halve down to 80x60 (4 for 640x480).
+    finest_level: *static*, stop after this level (0 = full resolution).
+    max_iterations: *static*, LM iterations per level (classic, RANSAC refinement).
+    hypothesis_iterations: *static*, LM iterations per RANSAC hypothesis.
+    irls_rounds: *static*, Huber re-weighting rounds per level (each runs
+      max_iterations // irls_rounds LM iterations, at least 1).
+    refine_rounds: *static*, RANSAC consensus -> refine rounds per level.
+    strides: *static*, per level (index 0 = finest), use every s-th reference pixel
+      in both directions for refinement; the current image is always sampled at
+      full resolution. Missing entries mean 1.
+    max_score_pixels: *static*, RANSAC scores hypotheses on at most about this many
+      reference pixels per level (a regular subgrid); the paper scores all pixels.
+    """
+    method: str = "ransac"
+    p: Any = 0.99
+    w: Any = 0.3
+    thresh_lum: Any = 30.0
+    thresh_depth: Any = 0.05
+    early_exit_ratio: Any = 0.9
+    huber_k: Any = 1.345
+    max_depth: Any = 4.0
+    min_inlier_ratio: Any = 0.2
+    n_points: int = 6
+    patch_radius: int = 1
+    max_hypotheses: int = 64
+    batch_size: int = 8
+    num_levels: Optional[int] = None
+    finest_level: int = 0
+    max_iterations: int = 10
+    hypothesis_iterations: int = 6
+    irls_rounds: int = 3
+    refine_rounds: int = 1
+    strides: Tuple[int, ...] = (2, 1, 1, 1)
+    max_score_pixels: int = 20000
+
+    def replace(self, **changes) -> "Config":
+        return dataclasses.replace(self, **changes)
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
+                     "irls_rounds", "refine_rounds", "max_score_pixels"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
+        if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
+            raise ValueError(f"config.finest_level={self.finest_level} must lie in [0, num_levels)")
+        if any(int(s) < 1 for s in self.strides):
+            raise ValueError(f"config.strides must be >= 1, got {self.strides}")
+
+
+_STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
+           "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "strides",
+           "max_score_pixels"]
+jax.tree_util.register_dataclass(
+    Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
+
+
+class MotionEstimate(NamedTuple):
+    """Result of :func:`estimate_motion`.
+
+    T_cur_ref: (4, 4) float32, maps reference-camera points into the current camera.
+    xi: (6,) twist (w, v) with T_cur_ref = exp(hat(xi)).
+    inlier_mask: (h, w) bool at the finest level processed: pixels whose
+      luminance and depth residuals are both under the thresholds at the final pose
+      (False where undefined: invalid depth, warped outside the image).
+    valid_mask: (h, w) bool, pixels where both residuals are defined.
+    inlier_ratio: inliers / reference pixels with valid depth at that level.
+    hypotheses: (L,) int32 RANSAC hypotheses evaluated per level (index 0 = finest; 0 if not run).
+    iterations: (L,) int32 LM iterations per level.
+    valid: bool, a trustworthy estimate: finite, inlier ratio >= min_inlier_ratio and
+      a well-conditioned information matrix.
+    information: (6, 6) J^T W J / sigma^2 at the finest level (inverse covariance of a
+      left perturbation of T_cur_ref, twist order (w, v)).
+    residual_rms: weighted RMS photometric residual at the finest level (0-255 units).
+    """
+    T_cur_ref: jnp.ndarray
+    xi: jnp.ndarray
+    inlier_mask: jnp.ndarray
+    valid_mask: jnp.ndarray
+    inlier_ratio: jnp.ndarray
+    hypotheses: jnp.ndarray
+    iterations: jnp.ndarray
+    valid: jnp.ndarray
+    information: jnp.ndarray
+    residual_rms: jnp.ndarray
+
+
+_TRACES = {"count": 0}
+
+
+def trace_count() -> int:
+    """How many times the estimator has been traced (compiled) in this process; for tests and benchmarks."""
+    return _TRACES["count"]
+
+
+def _levels(config: Config, width: int, height: int) -> int:
+    return config.num_levels if config.num_levels is not None else num_levels_for(width, height)
+
+
+def _stride(config: Config, level: int) -> int:
+    return int(config.strides[level]) if level < len(config.strides) else 1
+
+
+def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init):
+    _TRACES["count"] += 1
+    h, w = ref_int.shape
+    L = _levels(config, w, h)
+    ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth)
+    cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
+    T = T_init
+    hyps = [jnp.int32(0)] * L
+    iters = [jnp.int32(0)] * L
+    sol = None
+    for level in range(L - 1, config.finest_level - 1, -1):
+        cam = camera.at_level(level)
+        ref_l, cur_l = ref_pyr[level], cur_pyr[level]
+        pts = reference_points(ref_l, cam, _stride(config, level))
+        ones = pts.valid.astype(jnp.float32)
+        if config.method == "classic":
+            sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations)
+            iters[level] = sol.iterations
+        elif config.method == "huber":
+            inner = max(1, config.max_iterations // config.irls_rounds)
+            sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner)
+            iters[level] = sol.iterations
+        else:
+            hh, ww = ref_l.depth.shape
+            score_stride = max(1, int(np.ceil(np.sqrt(hh * ww / config.max_score_pixels))))
+            score_pts = reference_points(ref_l, cam, score_stride)
+            rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
+                              p=config.p, w=config.w, thresh_lum=config.thresh_lum,
+                              thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
+                              n=config.n_points, radius=config.patch_radius,
+                              max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
+                              hypothesis_iterations=config.hypothesis_iterations)
+            hyps[level] = rs.hypotheses
+            T = rs.T
+            it = jnp.int32(0)
+            for _ in range(config.refine_rounds):
+                mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
+                sol = solve_pose(T, pts, cur_l, cam, mask.astype(jnp.float32), config.max_iterations)
+                it = it + sol.iterations
+            iters[level] = it
+        T = sol.T
+
+    # per-pixel masks and statistics at the finest level processed, all pixels
+    level = config.finest_level
+    cam = camera.at_level(level)
+    ref_l, cur_l = ref_pyr[level], cur_pyr[level]
+    dense = reference_points(ref_l, cam, 1)
+    res = residuals(T, dense, cur_l, cam)
+    inl = inliers(res, config.thresh_lum, config.thresh_depth)
+    hl, wl = ref_l.depth.shape
+    n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
+    ratio = jnp.sum(inl) / n_valid
+    # residual scale on the pixels the final solve trusted (inliers for ransac)
+    wts = inl if config.method == "ransac" else res.valid_int
+    nw = jnp.maximum(jnp.sum(wts), 1)
+    var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
+    info = sol.hessian / jnp.maximum(var, 1e-6)
+    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
+    finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
+    conditioned = eig[0] > 1e-9 * jnp.maximum(eig[-1], 1e-30)
+    valid = finite & conditioned & (ratio >= config.min_inlier_ratio)
+    return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
+                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
+
+
+_estimate_jit = jax.jit(_estimate)
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config] = None, key=None,
+                    init=None) -> MotionEstimate:
+    """Estimate the rigid motion between two RGB-D frames.
+
+    Args:
+      ref: reference (earlier) Frame: intensity (H, W) float32 0-255, depth (H, W) float32 metres, 0 = invalid.
+      cur: current (later) Frame, same size.
+      camera: intrinsics for (H, W) images.
+      config: :class:`Config` (default: RANSAC with the paper's settings).
+      key: ``jax.random`` key (used by "ransac"); default ``jax.random.key(0)``. The
+        same key gives a bitwise identical result.
+      init: optional (4, 4) initial guess of T_cur_ref (default identity).
+
+    Returns:
+      :class:`MotionEstimate` whose ``T_cur_ref`` maps reference-camera points into the current camera.
+
+    Raises:
+      ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
+        images, no valid depth, or an invalid config.
+    """
+    config = Config() if config is None else config
+    if not isinstance(config, Config):
+        raise ValueError(f"config must be a jaxvo.Config, got {type(config).__name__}")
+    config.validate()
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera must be a jaxvo.Camera, got {type(camera).__name__}")
+    validate_pair(ref, cur, camera)
+    h, w = ref.intensity.shape
+    L = _levels(config, w, h)
+    if config.finest_level >= L:
+        raise ValueError(f"config.finest_level={config.finest_level} but the pyramid has only {L} levels")
+    if (w >> (L - 1)) < 8 or (h >> (L - 1)) < 8:
+        raise ValueError(f"{L} pyramid levels are too many for {w}x{h} images")
+    if key is None:
+        key = jax.random.key(0)
+    T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
+    if T0.shape != (4, 4):
+        raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
+    return _estimate_jit(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
+                         jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
+                         camera, config, key, T0)
+
+
+class Track(NamedTuple):
+    """Result of :func:`track`.
+
+    poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default).
+    relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair.
+    inlier_ratio, valid: (N-1,) per pair.
+    """
+    poses: np.ndarray
+    relative: np.ndarray
+    inlier_ratio: np.ndarray
+    valid: np.ndarray
+
+
+def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
+          T_world_first=None, callback=None) -> Track:
+    """Run :func:`estimate_motion` on consecutive frames and chain the results.
+
+    Frames may be any iterable (e.g. a lazy sequence). The key for pair i is
+    ``jax.random.fold_in(key, i)``. Poses accumulate on the host in float64:
+    ``T_world_cur = T_world_ref @ inv(T_cur_ref)``. ``callback(i, estimate, T_world_cur)``
+    is called after each pair (e.g. to write the trajectory as it grows).
+    The estimator compiles once; the next pair is dispatched before the previous
+    result is pulled to the host, so reading frames overlaps computation.
+    """
+    config = Config() if config is None else config
+    key = jax.random.key(0) if key is None else key
+    pose = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
+    poses, rel, ratios, valids = [pose], [], [], []
+    it = iter(frames)
+    try:
+        prev = next(it)
+    except StopIteration:
+        raise ValueError("track needs at least one frame") from None
+    pending = None  # (index, estimate) dispatched but not yet pulled to the host
+
+    def finish(i, est):
+        nonlocal pose
+        T = np.asarray(est.T_cur_ref, np.float64)
+        pose = pose @ geometry.inverse(T)
+        poses.append(pose)
+        rel.append(T)
+        ratios.append(float(est.inlier_ratio))
+        valids.append(bool(est.valid))
+        if callback is not None:
+            callback(i, est, pose)
+
+    for i, frame in enumerate(it):
+        est = estimate_motion(prev, frame, camera, config, jax.random.fold_in(key, i))
+        if pending is not None:
+            finish(*pending)
+        pending = (i, est)
+        prev = frame
+    if pending is not None:
+        finish(*pending)
+    return Track(np.stack(poses), np.stack(rel) if rel else np.zeros((0, 4, 4)),
+                 np.asarray(ratios), np.asarray(valids, bool))

@@ -1,0 +1,80 @@
+"""Image pyramids for coarse-to-fine alignment (pure JAX, jit-able).
+
+Level 0 is the full-resolution image; each level averages 2x2 blocks of the
+one above, so pixel centres follow ``c_l = (c + 0.5) / 2^l - 0.5`` (see
+:meth:`jaxvo.camera.Camera.at_level`). Depth is averaged over the *valid*
+pixels of each block only, so an invalid (0) reading never pulls an average
+towards the camera; a block with no valid pixel stays invalid. Intensity
+gradients (central differences, in intensity units per pixel of that level)
+are computed per level for the photometric Jacobian.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple, Tuple
+
+import jax.numpy as jnp
+
+__all__ = ["Level", "sanitize_depth", "downsample", "gradients", "build_pyramid", "num_levels_for"]
+
+
+class Level(NamedTuple):
+    """One pyramid level of one frame, float32.
+
+    intensity: (h, w) luminance 0-255. depth: (h, w) metres, 0 = invalid.
+    igrad: (h, w, 3) intensity, d intensity / d u (column), d intensity / d v (row)
+    stacked, so that one bilinear gather samples all three at a warped pixel.
+    """
+    intensity: jnp.ndarray
+    depth: jnp.ndarray
+    igrad: jnp.ndarray
+
+
+def sanitize_depth(depth, max_depth, min_depth=0.0):
+    """Depth (metres) with NaN/inf, values <= min_depth and values beyond max_depth set to 0 (invalid)."""
+    d = jnp.asarray(depth, jnp.float32)
+    ok = jnp.isfinite(d) & (d > min_depth) & (d <= max_depth)
+    return jnp.where(ok, d, 0.0)
+
+
+def downsample(intensity, depth):
+    """Halve (h, w) -> (h//2, w//2): 2x2 block mean of intensity, valid-only mean of depth."""
+    h, w = intensity.shape
+    h2, w2 = h // 2, w // 2
+    i = intensity[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean(axis=(1, 3))
+    d = depth[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2)
+    valid = (d > 0).astype(jnp.float32)
+    n = valid.sum(axis=(1, 3))
+    dsum = (d * valid).sum(axis=(1, 3))
+    return i, jnp.where(n > 0, dsum / jnp.maximum(n, 1.0), 0.0)
+
+
+def gradients(intensity):
+    """Central-difference gradients (one-sided at the border) -> (d/du, d/dv), intensity units per pixel."""
+    I = intensity
+    gu = jnp.concatenate([I[:, 1:2] - I[:, 0:1], 0.5 * (I[:, 2:] - I[:, :-2]), I[:, -1:] - I[:, -2:-1]], axis=1)
+    gv = jnp.concatenate([I[1:2] - I[0:1], 0.5 * (I[2:] - I[:-2]), I[-1:] - I[-2:-1]], axis=0)
+    return gu, gv
+
+
+def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0) -> Tuple[Level, ...]:
+    """(H, W) intensity and depth -> tuple of ``num_levels`` Levels, index 0 = full resolution.
+
+    Depth beyond ``max_depth`` metres (and NaN / non-positive) is invalid at every level.
+    """
+    i = jnp.asarray(intensity, jnp.float32)
+    d = sanitize_depth(depth, max_depth)
+    levels = []
+    for l in range(num_levels):
+        if l > 0:
+            i, d = downsample(i, d)
+        gu, gv = gradients(i)
+        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1)))
+    return tuple(levels)
+
+
+def num_levels_for(width: int, height: int, coarsest=(80, 60)) -> int:
+    """How many halvings keep the coarsest level at least ``coarsest`` (w, h): 4 for 640x480."""
+    n = 1
+    while width // 2 >= coarsest[0] and height // 2 >= coarsest[1]:
+        width, height, n = width // 2, height // 2, n + 1
+    return n

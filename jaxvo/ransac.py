@@ -1,0 +1,125 @@
+"""RANSAC over pose hypotheses from random pixel patches (the paper's Algorithm 1, per level).
+
+One call of :func:`ransac_level` runs, for one pyramid level:
+
+1. k = ceil(log(1 - p) / log(1 - (1 - w)^n)) hypotheses (37 for p = 0.99,
+   w = 0.3, n = 6), computed in batches of ``batch_size`` inside a
+   ``lax.while_loop`` so that the loop can stop early;
+2. each hypothesis: n random reference pixels with valid depth, each with its
+   (2r+1)^2 neighbourhood (54 pixels for n = 6, r = 1), and the weighted
+   Gauss-Newton/LM solve of the photometric least squares on those pixels
+   only, starting from the level's initial pose; a batch is solved with
+   ``jax.vmap``;
+3. each hypothesis is scored by its inliers on the level's scoring pixels:
+   |luminance residual| < ``thresh_lum`` and |depth residual| < ``thresh_depth``;
+4. the best hypothesis so far is kept; the loop stops when a hypothesis's
+   inlier ratio exceeds ``early_exit_ratio`` or after k hypotheses.
+
+The initial pose itself (the previous level's result) is scored first as
+hypothesis zero: on a static scene it usually passes the early exit at once,
+and it is never worse to keep the best of it and the sampled ones.
+All shapes are static: k may be a traced value (so p and w can be swept with
+``jax.vmap``); only ``max_hypotheses`` and ``batch_size`` fix array sizes.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxvo.camera import Camera
+from jaxvo.pyramid import Level
+from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
+from jaxvo.solvers import solve_pose
+
+__all__ = ["num_hypotheses", "inliers", "sample_patches", "RansacResult", "ransac_level"]
+
+
+def num_hypotheses(p, w, n):
+    """k = ceil(log(1 - p) / log(1 - (1 - w)^n)): draws needed to see one all-inlier sample with probability p.
+
+    p: success probability, w: outlier fraction, n: points per sample. Works on
+    Python floats and on traced JAX values.
+    """
+    good = (1.0 - w) ** n
+    return jnp.ceil(jnp.log(1.0 - p) / jnp.log1p(-good)).astype(jnp.int32)
+
+
+def inliers(res: Residuals, thresh_lum, thresh_depth):
+    """(N,) bool: |r_int| < thresh_lum (0-255 units) and |r_depth| < thresh_depth (metres), both defined."""
+    return res.valid_depth & (jnp.abs(res.r_int) < thresh_lum) & (jnp.abs(res.r_depth) < thresh_depth)
+
+
+def sample_patches(key, level: Level, n: int, batch: int, radius: int):
+    """Draw ``batch`` samples of ``n`` patch centres uniformly among reference pixels with valid depth
+    whose (2r+1)^2 neighbourhood lies inside the image.
+
+    Returns integer (u, v) coordinates of the patch pixels, each (batch, n * (2r+1)^2).
+    Sampling is by inverse CDF over the valid-pixel count (O(h w) once, then
+    O(log(h w)) per draw), so it costs the same at every level.
+    """
+    h, w = level.depth.shape
+    vv, uu = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    ok = (level.depth > 0) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
+    cdf = jnp.cumsum(ok.reshape(-1).astype(jnp.int32))
+    total = cdf[-1]
+    draws = jax.random.randint(key, (batch, n), 0, jnp.maximum(total, 1))
+    flat = jnp.searchsorted(cdf, draws, side="right")
+    cu, cv = flat % w, flat // w
+    d = jnp.arange(-radius, radius + 1)
+    du, dv = jnp.meshgrid(d, d, indexing="xy")
+    pu = (cu[..., None] + du.reshape(-1)).reshape(batch, -1)
+    pv = (cv[..., None] + dv.reshape(-1)).reshape(batch, -1)
+    return pu, pv
+
+
+class RansacResult(NamedTuple):
+    """T: (4, 4) best T_cur_ref; inlier_ratio: its ratio on the scoring pixels;
+    hypotheses: sampled hypotheses evaluated (int32, the scored initial pose not counted)."""
+    T: jnp.ndarray
+    inlier_ratio: jnp.ndarray
+    hypotheses: jnp.ndarray
+
+
+def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, score_ref: RefPoints, key, *,
+                 p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
+                 max_hypotheses: int, batch_size: int, hypothesis_iterations: int) -> RansacResult:
+    """Best pose hypothesis for one level; see the module docstring.
+
+    T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
+    reference points the hypotheses are scored on. The inlier ratio's
+    denominator is the number of scoring points with valid reference depth.
+    """
+    k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
+    n_ref = jnp.maximum(jnp.sum(score_ref.valid), 1).astype(jnp.float32)
+
+    def score(T):
+        return jnp.sum(inliers(residuals(T, score_ref, cur_level, camera), thresh_lum, thresh_depth))
+
+    def hypothesis(pu, pv):
+        pts = gather_points(ref_level, camera, pu, pv)
+        return solve_pose(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
+                          hypothesis_iterations).T
+
+    def cond(state):
+        b, _, best, _ = state
+        return (b * batch_size < k) & (best.astype(jnp.float32) / n_ref <= early_exit_ratio)
+
+    def body(state):
+        b, T_best, best, evaluated = state
+        pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius)
+        Ts = jax.vmap(hypothesis)(pu, pv)
+        counts = jax.vmap(score)(Ts)
+        idx = b * batch_size + jnp.arange(batch_size)
+        counts = jnp.where(idx < k, counts, -1)
+        j = jnp.argmax(counts)
+        better = counts[j] > best
+        T_best = jnp.where(better, Ts[j], T_best)
+        best = jnp.where(better, counts[j], best)
+        evaluated = evaluated + jnp.sum(idx < k)
+        return b + 1, T_best, best, evaluated
+
+    state = (jnp.int32(0), T_init, score(T_init), jnp.int32(0))
+    _, T_best, best, evaluated = jax.lax.while_loop(cond, body, state)
+    return RansacResult(T_best, best.astype(jnp.float32) / n_ref, evaluated)

@@ -1,0 +1,180 @@
+"""Warp, sampling, photometric / depth residuals and the photometric Jacobian.
+
+All functions are pure and jit-able, with static shapes: invalid pixels are
+reported through masks, never removed.
+
+For a reference pixel ``p = (u, v)`` with depth ``Z`` the warp is
+
+    P = Z * ((u - cx) / fx, (v - cy) / fy, 1)     (reference camera frame)
+    P' = T_cur_ref @ P                            (current camera frame)
+    p' = (fx X'/Z' + cx, fy Y'/Z' + cy)
+
+and the residuals are
+
+    r_I = I_cur(p') - I_ref(p)        photometric, 0-255 luminance units
+    r_Z = D_cur(p') - Z'              depth, metres (the current frame's depth
+                                      at the warped pixel against the depth of
+                                      the transformed point)
+
+Jacobians are with respect to a *left* perturbation ``delta`` of the pose,
+``T = exp(hat(delta)) @ T0`` at ``delta = 0``; with the twist order
+``(w, v)`` that is ``dP'/d delta = [-[P']x | I]``.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from jaxvo.camera import Camera, backproject
+from jaxvo.pyramid import Level
+
+__all__ = ["RefPoints", "Residuals", "reference_points", "gather_points", "warp", "sample_bilinear",
+           "sample_nearest", "residuals", "warp_jacobian", "photometric_terms", "photometric_jacobian"]
+
+
+class RefPoints(NamedTuple):
+    """Reference-frame pixels prepared for warping; leading shape (N,).
+
+    points: (N, 3) metres in the reference camera frame (0 where invalid).
+    intensity: (N,) reference luminance. valid: (N,) bool, reference depth valid.
+    u, v: (N,) pixel coordinates at this level (u = column, v = row).
+    """
+    points: jnp.ndarray
+    intensity: jnp.ndarray
+    valid: jnp.ndarray
+    u: jnp.ndarray
+    v: jnp.ndarray
+
+
+class Residuals(NamedTuple):
+    """Per-point residuals and masks, shape (N,) each.
+
+    r_int: photometric residual (0-255 units); valid_int: it is defined (valid
+    reference depth, warped point in front of the camera and inside the image).
+    r_depth: depth residual (metres); valid_depth: valid_int and the current
+    depth at the warped pixel is valid. u, v, z: warped pixel and depth.
+    """
+    r_int: jnp.ndarray
+    valid_int: jnp.ndarray
+    r_depth: jnp.ndarray
+    valid_depth: jnp.ndarray
+    u: jnp.ndarray
+    v: jnp.ndarray
+    z: jnp.ndarray
+
+
+def reference_points(level: Level, camera: Camera, stride: int = 1) -> RefPoints:
+    """Every ``stride``-th pixel (in both directions) of a reference level as RefPoints, row-major."""
+    h, w = level.depth.shape
+    vv, uu = jnp.meshgrid(jnp.arange(0, h, stride, dtype=jnp.float32),
+                          jnp.arange(0, w, stride, dtype=jnp.float32), indexing="ij")
+    z = level.depth[::stride, ::stride]
+    inten = level.intensity[::stride, ::stride]
+    P = backproject(camera, uu, vv, z)
+    return RefPoints(P.reshape(-1, 3), inten.reshape(-1), (z > 0).reshape(-1), uu.reshape(-1), vv.reshape(-1))
+
+
+def gather_points(level: Level, camera: Camera, u_idx, v_idx) -> RefPoints:
+    """RefPoints at integer pixel coordinates (any shape; clipped into the image)."""
+    h, w = level.depth.shape
+    ui = jnp.clip(u_idx, 0, w - 1)
+    vi = jnp.clip(v_idx, 0, h - 1)
+    z = level.depth[vi, ui]
+    uf, vf = ui.astype(jnp.float32), vi.astype(jnp.float32)
+    P = backproject(camera, uf, vf, z)
+    return RefPoints(P, level.intensity[vi, ui], z > 0, uf, vf)
+
+
+def warp(T_cur_ref, points, camera: Camera):
+    """Transform (N, 3) reference points by T_cur_ref (4, 4) and project.
+
+    Returns (P' (N, 3), u', v', in_front (N,) bool).
+    """
+    Pc = points @ T_cur_ref[:3, :3].T + T_cur_ref[:3, 3]
+    z = Pc[:, 2]
+    in_front = z > 1e-3
+    zs = jnp.where(in_front, z, 1.0)
+    u = camera.fx * Pc[:, 0] / zs + camera.cx
+    v = camera.fy * Pc[:, 1] / zs + camera.cy
+    return Pc, u, v, in_front
+
+
+def _inside(u, v, h, w):
+    return (u >= 0.0) & (u <= w - 1.0) & (v >= 0.0) & (v <= h - 1.0)
+
+
+def sample_bilinear(images, u, v):
+    """Bilinear sampling of (h, w, C) ``images`` at float pixel coords (N,) -> (N, C).
+
+    Coordinates outside the image are clamped; callers mask them with their own
+    inside test. Pixel centres at integers.
+    """
+    h, w = images.shape[:2]
+    u0 = jnp.clip(jnp.floor(u), 0, w - 2)
+    v0 = jnp.clip(jnp.floor(v), 0, h - 2)
+    a = jnp.clip(u - u0, 0.0, 1.0)[:, None]
+    b = jnp.clip(v - v0, 0.0, 1.0)[:, None]
+    flat = images.reshape(h * w, -1)
+    i00 = (v0 * w + u0).astype(jnp.int32)
+    top = flat[i00] * (1 - a) + flat[i00 + 1] * a
+    bot = flat[i00 + w] * (1 - a) + flat[i00 + w + 1] * a
+    return top * (1 - b) + bot * b
+
+
+def sample_nearest(image, u, v):
+    """Nearest-pixel sampling of (h, w) ``image`` at float coords (N,) -> (N,); clamped.
+
+    Used for depth: interpolating across a depth edge would invent surfaces.
+    """
+    h, w = image.shape
+    ui = jnp.clip(jnp.round(u), 0, w - 1).astype(jnp.int32)
+    vi = jnp.clip(jnp.round(v), 0, h - 1).astype(jnp.int32)
+    return image.reshape(-1)[vi * w + ui]
+
+
+def residuals(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera) -> Residuals:
+    """Photometric and depth residuals of reference points warped into the current level."""
+    h, w = cur.intensity.shape
+    Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
+    valid = ref.valid & in_front & _inside(u, v, h, w)
+    i_cur = sample_bilinear(cur.intensity[..., None], u, v)[:, 0]
+    d_cur = sample_nearest(cur.depth, u, v)
+    r_int = jnp.where(valid, i_cur - ref.intensity, 0.0)
+    valid_d = valid & (d_cur > 0)
+    r_depth = jnp.where(valid_d, d_cur - Pc[:, 2], 0.0)
+    return Residuals(r_int, valid, r_depth, valid_d, u, v, Pc[:, 2])
+
+
+def warp_jacobian(Pc, camera: Camera):
+    """d(u', v') / d delta for warped points Pc (N, 3) -> (N, 2, 6), left perturbation, twist (w, v)."""
+    x, y, z = Pc[:, 0], Pc[:, 1], Pc[:, 2]
+    zi = 1.0 / jnp.where(jnp.abs(z) > 1e-6, z, 1e-6)
+    fx, fy = camera.fx, camera.fy
+    # d(u,v)/dP' (2x3) times [-[P']x | I] (3x6), written out
+    xz, yz = x * zi, y * zi
+    ju = jnp.stack([-fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * zi, jnp.zeros_like(z), -fx * xz * zi], -1)
+    jv = jnp.stack([-fy * (1 + yz * yz), fy * xz * yz, fy * xz, jnp.zeros_like(z), fy * zi, -fy * yz * zi], -1)
+    return jnp.stack([ju, jv], 1)
+
+
+def photometric_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera):
+    """Photometric residual r (N,), Jacobian J (N, 6) (left perturbation) and validity (N,) in one pass.
+
+    J = [dI/du, dI/dv](p') @ d(u', v')/d delta, with the current image's
+    gradient images sampled bilinearly at the warped pixel (the classic
+    Lucas-Kanade forward-additive Jacobian). Invalid rows are zero.
+    """
+    h, w = cur.intensity.shape
+    Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
+    valid = ref.valid & in_front & _inside(u, v, h, w)
+    s = sample_bilinear(cur.igrad, u, v)
+    r = jnp.where(valid, s[:, 0] - ref.intensity, 0.0)
+    Jw = warp_jacobian(Pc, camera)
+    J = s[:, 1:2] * Jw[:, 0] + s[:, 2:3] * Jw[:, 1]
+    return r, jnp.where(valid[:, None], J, 0.0), valid
+
+
+def photometric_jacobian(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera):
+    """(N, 6) photometric Jacobian; see :func:`photometric_terms`."""
+    return photometric_terms(T_cur_ref, ref, cur, camera)[1]
