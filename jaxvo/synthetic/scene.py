@@ -26,6 +26,7 @@ smooth at the pixel scale of a 640x480 Kinect-like camera at 0.5-4 m.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Optional, Sequence
 
@@ -333,7 +334,16 @@ def make_room(seed: int = 0, *, furniture: int = 8) -> Scene:
     randomly but clear of a ~0.7 m region around the origin where the camera
     lives. From the origin looking along +z the far wall is 3.2 m away, so
     typical depths are 1-4 m. Add persons with :meth:`Scene.add`.
+
+    Returns a fresh :class:`Scene` (a new object list, so ``add`` is safe); the static objects and
+    their textures are cached and shared between rooms of the same seed (treat them as read-only).
     """
+    return Scene(list(_make_room_objects(int(seed), int(furniture))), seed)
+
+
+@functools.lru_cache(maxsize=2)
+def _make_room_objects(seed: int = 0, furniture: int = 8) -> tuple:
+    """Cached static objects of :func:`make_room` (a tuple)."""
     rng = np.random.default_rng(seed)
     b = ROOM_BOUNDS
     centre = b.mean(1)
@@ -375,4 +385,4 @@ def make_room(seed: int = 0, *, furniture: int = 8) -> Scene:
     objs.append(make_object(rng, Rect(rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.5)),
                             _pose(t=(rng.uniform(-1.0, 1.0), rng.uniform(-0.9, -0.3), b[2, 1] - 0.01)),
                             name="poster"))
-    return Scene(objs, seed)
+    return tuple(objs)

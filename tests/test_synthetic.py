@@ -1,0 +1,248 @@
+"""Tests of jaxvo.synthetic: exact geometry of renders, masks, determinism, augmentation."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from jaxvo import geometry
+from jaxvo.camera import DEFAULT, TUM_FR2
+from jaxvo.synthetic import (Box, FixedPose, Rect, Scene, SensorModel, augment, generate, make_object,
+                             make_person, make_room, make_sequence, render)
+from jaxvo.synthetic.motions import rot_x, rot_y
+from jaxvo.synthetic.scene import ROOM_BOUNDS
+
+CAM = DEFAULT.at_level(2)          # 160 x 120
+CAM1 = DEFAULT.at_level(1)         # 320 x 240
+TUM_DESK = Path("/work/shared/data/tum/rgbd_dataset_freiburg2_desk")
+
+
+def _T(R=np.eye(3), t=(0, 0, 0)):
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _rays_world(cam, T_world_cam):
+    """Independent float64 rays: origin (3,), directions (H, W, 3) with unit camera-z component."""
+    v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+    d = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1)
+    return T_world_cam[:3, 3], d @ T_world_cam[:3, :3].T
+
+
+@pytest.fixture(scope="module")
+def room():
+    return make_room(seed=0)
+
+
+def test_room_depth_matches_plane_intersections(room):
+    # camera inside the room, rotated; every pixel whose nearest hit is the room box must have the depth
+    # of the nearest exit through the six wall planes, computed here by hand in float64.
+    T = _T(rot_y(0.4) @ rot_x(-0.2), (0.1, -0.1, 0.2))
+    r = render(room, CAM, T)
+    o, d = _rays_world(CAM, T)
+    ts = []
+    for k in range(3):
+        for bound in ROOM_BOUNDS[k]:
+            with np.errstate(divide="ignore"):
+                t = (bound - o[k]) / d[..., k]
+            ts.append(np.where(t > 0, t, np.inf))
+    t_wall = np.min(ts, axis=0)     # t along d (unit camera z) == depth
+    wall = r.object_id == 0
+    assert wall.mean() > 0.3
+    np.testing.assert_allclose(r.depth[wall], t_wall[wall], rtol=2e-6, atol=2e-6)
+    # everything else is nearer than the wall behind it
+    assert np.all(r.depth[~wall] <= t_wall[~wall] + 1e-5)
+    assert r.depth.dtype == np.float32 and r.rgb.dtype == np.uint8 and r.rgb.shape == (120, 160, 3)
+
+
+def test_plane_and_box_depth_and_ids():
+    rng = np.random.default_rng(1)
+    n = np.array([0.2, -0.1, -1.0])
+    n /= np.linalg.norm(n)
+    # a tilted rectangle at 3 m (big enough to fill the view) and a box in front of it
+    R_plane = geometry.exp_so3(np.array([0.1, -0.2, 0.05]))
+    plane = make_object(rng, Rect(3.0, 3.0), _T(R_plane, (0.2, 0.1, 3.0)))
+    box = make_object(rng, Box((0.3, 0.2, 0.25)), _T(rot_y(0.5), (-0.3, 0.1, 1.5)))
+    scene = Scene([plane, box])
+    T = _T(rot_x(0.05), (0.0, 0.05, 0.0))
+    r = render(scene, CAM, T)
+    o, d = _rays_world(CAM, T)
+    nrm, p0 = R_plane[:, 2], np.array([0.2, 0.1, 3.0])
+    t_plane = ((p0 - o) @ nrm) / (d @ nrm)
+    # box: slab test in the box frame
+    Tb = geometry.inverse(box.pose)
+    ol = Tb[:3, :3] @ o + Tb[:3, 3]
+    dl = d @ Tb[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (-np.array([0.3, 0.2, 0.25]) - ol) / dl
+        t2 = (np.array([0.3, 0.2, 0.25]) - ol) / dl
+    tn = np.max(np.minimum(t1, t2), -1)
+    tf = np.min(np.maximum(t1, t2), -1)
+    hit_box = (tn <= tf) & (tn > 0)
+    # ids agree except possibly on a handful of silhouette pixels (float32 vs float64)
+    assert np.mean((r.object_id == 1) != hit_box) < 0.002
+    assert hit_box.sum() > 200
+    on_plane = (r.object_id == 0) & ~hit_box
+    np.testing.assert_allclose(r.depth[on_plane], t_plane[on_plane], rtol=2e-6, atol=2e-6)
+    inside = (r.object_id == 1) & hit_box
+    np.testing.assert_allclose(r.depth[inside], tn[inside], rtol=2e-6, atol=2e-6)
+    assert not r.moving_mask.any()
+
+
+def _bilinear(img, u, v):
+    return cv2.remap(img.astype(np.float32), u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+def test_two_views_are_photometrically_consistent(room):
+    # back-project view A with its depth, move the 3-D points with the true T_B_A, and compare intensities
+    TA = _T(rot_y(0.05) @ rot_x(-0.1), (0.0, 0.0, 0.0))
+    TB = TA @ _T(geometry.exp_so3(np.array([0.01, -0.03, 0.02])), (0.04, -0.02, 0.03))
+    a = render(room, CAM1, TA)
+    b = render(room, CAM1, TB)
+    v, u = np.mgrid[0:CAM1.height, 0:CAM1.width].astype(np.float64)
+    z = a.depth.astype(np.float64)
+    P_a = np.stack([(u - CAM1.cx) / CAM1.fx * z, (v - CAM1.cy) / CAM1.fy * z, z], -1)
+    T_b_a = geometry.inverse(TB) @ TA
+    P_b = P_a @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    ub = CAM1.fx * P_b[..., 0] / P_b[..., 2] + CAM1.cx
+    vb = CAM1.fy * P_b[..., 1] / P_b[..., 2] + CAM1.cy
+    inside = (ub > 1) & (ub < CAM1.width - 2) & (vb > 1) & (vb < CAM1.height - 2)
+    zb = _bilinear(b.depth, ub, vb)
+    # visible in B (not occluded) and away from depth discontinuities in both views
+    edge_a = cv2.dilate((np.abs(cv2.Laplacian(a.depth, cv2.CV_32F)) > 0.02).astype(np.uint8), np.ones((5, 5)))
+    ok = inside & (np.abs(zb - P_b[..., 2]) < 0.005 * P_b[..., 2]) & (edge_a == 0)
+    assert ok.mean() > 0.5
+    ib = _bilinear(b.intensity, ub, vb)
+    err = np.abs(ib - a.intensity)[ok]
+    assert np.median(err) < 2.0, np.median(err)
+    assert np.percentile(err, 90) < 8.0, np.percentile(err, 90)
+    # a wrong pose is clearly worse (the texture has something to lock on to)
+    T_wrong = T_b_a @ _T(t=(0.02, 0.0, 0.0))
+    P_w = P_a @ T_wrong[:3, :3].T + T_wrong[:3, 3]
+    uw = CAM1.fx * P_w[..., 0] / P_w[..., 2] + CAM1.cx
+    vw = CAM1.fy * P_w[..., 1] / P_w[..., 2] + CAM1.cy
+    err_w = np.abs(_bilinear(b.intensity, uw, vw) - a.intensity)[ok]
+    assert np.median(err_w) > 3 * np.median(err)
+
+
+def test_moving_mask_is_exactly_the_person():
+    scene = make_room(seed=2)
+    rng = np.random.default_rng(5)
+    centre = np.array([0.3, 0.2, 1.2])
+    pid = scene.add(make_person(rng, FixedPose(_T(rot_y(0.3), centre)), kind="box", width=0.5, height=1.7))
+    r = render(scene, CAM, np.eye(4), t=0.0)
+    assert np.array_equal(r.moving_mask, r.object_id == pid)
+    # independent slab test for the person box (nothing is between the camera and the person at 1.2 m)
+    o, d = _rays_world(CAM, np.eye(4))
+    R = rot_y(0.3)
+    ol = R.T @ (o - centre)
+    dl = d @ R
+    h = np.array([0.25, 0.85, 0.15])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-h - ol) / dl, (h - ol) / dl
+    tn, tf = np.max(np.minimum(t1, t2), -1), np.min(np.maximum(t1, t2), -1)
+    hit = (tn <= tf) & (tn > 0)
+    assert hit.sum() > 1000
+    assert np.sum(hit != r.moving_mask) <= 3
+    np.testing.assert_allclose(r.depth[hit & r.moving_mask], tn[hit & r.moving_mask], rtol=2e-6, atol=2e-6)
+    # moving persons move: another time, another mask; the static background is unchanged where uncovered
+    seq = make_sequence("seq1", frames=31, seed=0, camera=CAM)
+    r0, r1 = seq.render(0), seq.render(30)
+    assert r0.moving_mask.any() and r1.moving_mask.any()
+    assert not np.array_equal(r0.moving_mask, r1.moving_mask)
+    both_static = ~r0.moving_mask & ~r1.moving_mask
+    assert np.array_equal(r0.rgb[both_static], r1.rgb[both_static])   # fixed camera
+
+
+def test_sequences_motion():
+    seq2 = make_sequence("seq2", frames=31, seed=0, camera=CAM)
+    rates = [math.degrees(geometry.rotation_angle(seq2.relative_pose(k)[:3, :3])) * 30 for k in range(30)]
+    np.testing.assert_allclose(rates, 2.0, rtol=1e-6)
+    assert np.allclose(seq2.relative_pose(0)[:3, 3], 0, atol=1e-12)
+    assert len(make_sequence("seq3", frames=2, camera=CAM).persons) == 2
+    seq0 = make_sequence("seq0", frames=60, seed=3, camera=CAM)
+    assert not seq0.persons
+    steps = [np.linalg.norm(seq0.relative_pose(k)[:3, 3]) for k in range(59)]
+    assert 0.002 < np.mean(steps) < 0.05
+    fast = make_sequence("handheld-fast", frames=90, seed=0, camera=CAM)
+    cov = [fast.render(k).moving_mask.mean() for k in range(0, 90, 10)]
+    assert max(cov) > 0.4
+    with pytest.raises(ValueError):
+        make_sequence("seq9")
+
+
+def test_sensor_model():
+    seq = make_sequence("seq0", frames=1, seed=0, camera=CAM)
+    ideal = seq.render(0)
+    a = seq.render(0, sensor=SensorModel(max_range=2.5), rng=np.random.default_rng(1))
+    b = seq.render(0, sensor=SensorModel(max_range=2.5), rng=np.random.default_rng(1))
+    assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth, b.depth)
+    assert not np.array_equal(a.rgb, ideal.rgb)
+    assert np.all(a.depth[ideal.depth > 2.6] == 0)
+    v = a.depth > 0
+    assert v.mean() > 0.2
+    np.testing.assert_allclose(a.depth[v] * 5000, np.rint(a.depth[v] * 5000), atol=2e-3)
+    assert np.abs(a.depth[v] - ideal.depth[v]).max() < 0.05
+
+
+def _tree(d: Path):
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_generate_is_bitwise_deterministic(tmp_path):
+    kw = dict(frames=3, seed=7, camera=CAM, sensor=SensorModel())
+    calls = []
+    a = generate("seq1", tmp_path / "a", progress=lambda i, n: calls.append((i, n)), **kw)
+    b = generate("seq1", tmp_path / "b", **kw)
+    c = generate("seq1", tmp_path / "c", **{**kw, "seed": 8})
+    ta, tb, tc = _tree(a), _tree(b), _tree(c)
+    assert calls == [(1, 3), (2, 3), (3, 3)]
+    assert ta == tb
+    assert ta.keys() == tc.keys() and ta != tc
+    assert len([k for k in ta if k.startswith("rgb/")]) == 3
+    for sub in ("rgb", "depth", "masks"):
+        assert (a / f"{sub}.txt").read_text().startswith("# ")
+    depth = cv2.imread(str(a / "depth" / "0.000000.png"), cv2.IMREAD_UNCHANGED)
+    assert depth.dtype == np.uint16 and depth.shape == (120, 160)
+    mask = cv2.imread(str(a / "masks" / "0.033333.png"), cv2.IMREAD_UNCHANGED)
+    assert set(np.unique(mask)) <= {0, 255} and mask.max() == 255
+    # ground truth: T_world_cam, parses back to the sequence poses
+    gt = np.loadtxt(a / "groundtruth.txt")
+    seq = make_sequence("seq1", frames=3, seed=7, camera=CAM)
+    T = geometry.transform_from_quat_trans(gt[:, 4:8], gt[:, 1:4])
+    np.testing.assert_allclose(T, seq.poses, atol=1e-8)
+    rgb = cv2.imread(str(a / "rgb" / "0.000000.png"))[..., ::-1]
+    r = seq.render(0, sensor=SensorModel(), rng=np.random.default_rng(np.random.SeedSequence([7, 0, 0x5E50])))
+    assert np.array_equal(rgb, r.rgb)
+
+
+def test_augment_keeps_groundtruth_and_masks_changed_pixels(tmp_path):
+    if not TUM_DESK.is_dir():
+        pytest.skip(f"real TUM data not found: {TUM_DESK}")
+    out = augment(TUM_DESK, tmp_path / "aug", persons=2, coverage=0.3, seed=0, max_frames=3)
+    assert (out / "groundtruth.txt").read_bytes() == (TUM_DESK / "groundtruth.txt").read_bytes()
+    lines = lambda p: [l.split() for l in p.read_text().splitlines() if not l.startswith("#")]
+    rgb_list, dep_list, mask_list = lines(out / "rgb.txt"), lines(out / "depth.txt"), lines(out / "masks.txt")
+    assert len(rgb_list) == len(dep_list) == len(mask_list) == 3
+    covs = []
+    for (ts, rgb_name), (dts, dep_name), (mts, mask_name) in zip(rgb_list, dep_list, mask_list):
+        assert mts == ts and abs(float(dts) - float(ts)) <= 0.02
+        real_rgb = cv2.imread(str(TUM_DESK / rgb_name), cv2.IMREAD_UNCHANGED)
+        new_rgb = cv2.imread(str(out / rgb_name), cv2.IMREAD_UNCHANGED)
+        real_d = cv2.imread(str(TUM_DESK / dep_name), cv2.IMREAD_UNCHANGED)
+        new_d = cv2.imread(str(out / dep_name), cv2.IMREAD_UNCHANGED)
+        mask = cv2.imread(str(out / mask_name), cv2.IMREAD_UNCHANGED)
+        assert new_d.dtype == np.uint16 and set(np.unique(mask)) <= {0, 255}
+        changed = np.any(new_rgb != real_rgb, -1) | (new_d != real_d)
+        assert np.array_equal(mask == 255, changed)
+        # z-test: composited depth is nearer than the real one (or the real one was missing)
+        m = mask == 255
+        assert np.all((new_d[m] < real_d[m]) | (real_d[m] == 0)) and np.all(new_d[m] > 0)
+        covs.append(m.mean())
+    assert 0.1 < np.mean(covs) < 0.5
