@@ -31,7 +31,7 @@ from jaxvo.camera import Camera
 from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, num_levels_for
 from jaxvo.ransac import inliers, ransac_level
-from jaxvo.residuals import reference_points, residuals
+from jaxvo.residuals import reference_points, residuals, select_points
 from jaxvo.solvers import irls, solve_pose
 
 __all__ = ["Config", "MotionEstimate", "estimate_motion", "track", "Track", "METHODS", "trace_count"]
@@ -63,9 +63,10 @@ class Config:
     irls_rounds: *static*, Huber re-weighting rounds per level (each runs
       max_iterations // irls_rounds LM iterations, at least 1).
     refine_rounds: *static*, RANSAC consensus -> refine rounds per level.
-    strides: *static*, per level (index 0 = finest), use every s-th reference pixel
-      in both directions for refinement; the current image is always sampled at
-      full resolution. Missing entries mean 1.
+    blocks: *static*, per level (index 0 = finest): the refinement uses one reference
+      pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
+      pixel). The current image is always sampled at that level's full resolution.
+      Missing entries mean 1.
     max_score_pixels: *static*, RANSAC scores hypotheses on at most about this many
       reference pixels per level (a regular subgrid); the paper scores all pixels.
     """
@@ -88,7 +89,7 @@ class Config:
     hypothesis_iterations: int = 6
     irls_rounds: int = 3
     refine_rounds: int = 1
-    strides: Tuple[int, ...] = (2, 1, 1, 1)
+    blocks: Tuple[int, ...] = (4, 2, 1, 1)
     max_score_pixels: int = 20000
 
     def replace(self, **changes) -> "Config":
@@ -103,12 +104,12 @@ class Config:
                 raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
         if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
             raise ValueError(f"config.finest_level={self.finest_level} must lie in [0, num_levels)")
-        if any(int(s) < 1 for s in self.strides):
-            raise ValueError(f"config.strides must be >= 1, got {self.strides}")
+        if any(int(b) < 1 for b in self.blocks):
+            raise ValueError(f"config.blocks must be >= 1, got {self.blocks}")
 
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
-           "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "strides",
+           "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "blocks",
            "max_score_pixels"]
 jax.tree_util.register_dataclass(
     Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
@@ -156,8 +157,8 @@ def _levels(config: Config, width: int, height: int) -> int:
     return config.num_levels if config.num_levels is not None else num_levels_for(width, height)
 
 
-def _stride(config: Config, level: int) -> int:
-    return int(config.strides[level]) if level < len(config.strides) else 1
+def _block(config: Config, level: int) -> int:
+    return int(config.blocks[level]) if level < len(config.blocks) else 1
 
 
 def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init):
@@ -173,7 +174,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     for level in range(L - 1, config.finest_level - 1, -1):
         cam = camera.at_level(level)
         ref_l, cur_l = ref_pyr[level], cur_pyr[level]
-        pts = reference_points(ref_l, cam, _stride(config, level))
+        pts = select_points(ref_l, cam, _block(config, level))
         ones = pts.valid.astype(jnp.float32)
         if config.method == "classic":
             sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations)

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxvo.camera import Camera, backproject
 from jaxvo.pyramid import Level
 
-__all__ = ["RefPoints", "Residuals", "reference_points", "gather_points", "warp", "sample_bilinear",
+__all__ = ["RefPoints", "Residuals", "reference_points", "select_points", "gather_points", "warp", "sample_bilinear",
            "sample_nearest", "residuals", "warp_jacobian", "photometric_terms", "photometric_jacobian"]
 
 
@@ -73,6 +73,27 @@ def reference_points(level: Level, camera: Camera, stride: int = 1) -> RefPoints
     inten = level.intensity[::stride, ::stride]
     P = backproject(camera, uu, vv, z)
     return RefPoints(P.reshape(-1, 3), inten.reshape(-1), (z > 0).reshape(-1), uu.reshape(-1), vv.reshape(-1))
+
+
+def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
+    """One reference point per ``block`` x ``block`` tile: the valid-depth pixel with the largest
+    intensity gradient (squared norm) in the tile. ``block = 1`` gives every pixel.
+
+    Static shapes ((h // block) * (w // block) points, tiles without valid depth give an
+    invalid point) and an even spread over the image, while keeping the pixels that
+    carry photometric information (as in semi-dense direct methods).
+    """
+    if block == 1:
+        return reference_points(level, camera, 1)
+    h, w = level.depth.shape
+    hb, wb = h // block, w // block
+    g2 = level.igrad[..., 1] ** 2 + level.igrad[..., 2] ** 2
+    score = jnp.where(level.depth > 0, g2 + 1e-3, 0.0)[: hb * block, : wb * block]
+    tiles = score.reshape(hb, block, wb, block).transpose(0, 2, 1, 3).reshape(hb, wb, block * block)
+    k = jnp.argmax(tiles, axis=-1)
+    vi = jnp.arange(hb)[:, None] * block + k // block
+    ui = jnp.arange(wb)[None, :] * block + k % block
+    return gather_points(level, camera, ui.reshape(-1), vi.reshape(-1))
 
 
 def gather_points(level: Level, camera: Camera, u_idx, v_idx) -> RefPoints:

@@ -58,20 +58,25 @@ def _weighted_jacobian(delta, T0, ref, cur, camera, sqrt_w):
 
 
 class _PoseLM(jaxopt.LevenbergMarquardt):
-    """LM that stops on an absolute step size (twist norm < xtol).
+    """LM that stops on an absolute step size (twist norm < xtol) or after two
+    consecutive rejected steps.
 
     jaxopt's relative criteria (gradient norm, step relative to ||params||)
-    do not suit a left increment that starts at 0 and a cost whose scale
-    depends on the number of pixels.
+    do not suit a left increment that starts at 0. Rejections matter because
+    the Jacobian uses smoothed image gradients, not the exact derivative of the
+    bilinear interpolant: at the noise floor the proposed step stays finite
+    but no longer lowers the cost, and further iterations are wasted. jaxopt
+    doubles ``increase_factor`` on each rejection and resets it to 2 on
+    acceptance, so ``increase_factor >= 8`` means two rejections in a row.
     """
 
     def _cond_fun(self, inputs):
         _, state = inputs[0]
-        return jnp.linalg.norm(state.delta) > self.xtol
+        return (jnp.linalg.norm(state.delta) > self.xtol) & (state.increase_factor < 8)
 
 
 def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter: int,
-               xtol: float = 1e-5) -> Solution:
+               xtol: float = 1e-4) -> Solution:
     """Minimise 0.5 * sum_i w_i r_i(T)^2 over T_cur_ref, starting at T0.
 
     Args:
@@ -81,7 +86,12 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
       xtol: stop once an LM step is shorter than this (twist norm: radians and metres mixed;
         1e-5 is 0.01 mm / 0.0006 deg).
     """
-    sqrt_w = jnp.sqrt(jnp.maximum(weights, 0.0)).astype(jnp.float32)
+    weights = jnp.maximum(weights, 0.0).astype(jnp.float32)
+    # Normalise the cost by the total weight: the optimum is unchanged, and the
+    # Hessian then has a size-independent scale, so that LM's damping (capped at
+    # 2^32 by jaxopt) can still shrink a rejected step until the step test stops it.
+    total = jnp.maximum(jnp.sum(weights), 1.0)
+    sqrt_w = jnp.sqrt(weights / total)
     solver = _PoseLM(
         residual_fun=_weighted_residual, jac_fun=_weighted_jacobian, materialize_jac=True,
         solver="cholesky", maxiter=maxiter, stop_criterion="madsen-nielsen", xtol=xtol, gtol=1e-9,
@@ -94,7 +104,8 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
     # guard: a degenerate system (e.g. no valid pixel) must not poison the pose
     ok = jnp.all(jnp.isfinite(params))
     delta = jnp.where(ok, params, 0.0)
-    return Solution(geometry.exp(delta) @ T0, state.iter_num.astype(jnp.int32), state.jtj, state.value)
+    return Solution(geometry.exp(delta) @ T0, state.iter_num.astype(jnp.int32), state.jtj * total,
+                    state.value * total)
 
 
 def robust_scale(r, valid, max_abs: float = 256.0, bins: int = 1024):
