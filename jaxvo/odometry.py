@@ -199,6 +199,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             for _ in range(config.refine_rounds):
                 mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
                 sol = solve_pose(T, pts, cur_l, cam, mask.astype(jnp.float32), config.max_iterations)
+                T = sol.T
                 it = it + sol.iterations
             iters[level] = it
         T = sol.T

@@ -1,0 +1,414 @@
+"""Speed of jaxvo per 640x480 frame pair, against OpenCV / Open3D in the same process.
+
+Sections of the report (``speed.md`` + ``speed.json``):
+
+1. Per method (classic, huber, ransac) on static pairs (TUM freiburg2_desk) and
+   dynamic pairs (Bonn crowd): median / p90 ms, FPS, compile time (the first call:
+   trace + XLA compile + one run, measured separately), RANSAC hypotheses actually
+   evaluated (with early exit; summed over the pyramid levels), next to the
+   paper's Table III (25 FPS classic / Huber, 14 FPS RANSAC static, 2 FPS dynamic).
+2. Per pyramid level: ``Config(finest_level=l)`` stops after level l, so the time
+   of level l is t(finest_level=l) - t(finest_level=l+1) (level L-1, the coarsest,
+   is t(finest_level=L-1); each finest_level compiles once more).
+3. Peers (OpenCV rgb / depth / rgbd; Open3D color / hybrid when installed) on
+   the identical pairs, and ratio columns jaxvo time / peer time.
+4. Batch throughput: B frame pairs stacked and processed as one ``jax.jit(jax.vmap(
+   estimate_motion))`` call, pairs per second vs the one-pair-at-a-time loop, on CPU
+   and, when jax sees a GPU, on the GPU.
+5. Memory: peak RSS (``resource.getrusage``) of the process after each section, and
+   ``jaxvo.track`` over 50 vs 500 frames of a synthetic sequence fed lazily (see
+   ``--track-frames``): the RSS must not grow with the number of frames.
+
+Example::
+
+    python experiments/speed.py                    # full run (minutes; quiet machine please)
+    python experiments/speed.py --quick --out /tmp/speed.md   # tiny, for CI
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import common  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+from jaxvo.frame import Frame  # noqa: E402
+from jaxvo.odometry import METHODS, Config, estimate_motion, track  # noqa: E402
+
+STATIC = "rgbd_dataset_freiburg2_desk"
+DYNAMIC = "rgbd_bonn_crowd"
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument("--static", default=None, help=f"static sequence folder (default data_root()/tum/{STATIC})")
+    ap.add_argument("--dynamic", default=None, help=f"dynamic sequence folder (default data_root()/bonn/{DYNAMIC})")
+    ap.add_argument("--pairs", type=int, default=20, help="frame pairs per sequence (default 20)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed passes over the pairs (default 3)")
+    ap.add_argument("--methods", default="classic,huber,ransac", help="jaxvo methods (default all three)")
+    ap.add_argument("--peers", default="peers", help="peer names, comma list; 'peers' = all available, "
+                                                      "'none' = skip")
+    ap.add_argument("--level-methods", default=None,
+                    help="methods for the per-level breakdown (default: all --methods; 'none' = skip)")
+    ap.add_argument("--batch", default="1,4,8", help="batch sizes for the vmap throughput (default 1,4,8; "
+                                                     "'none' = skip)")
+    ap.add_argument("--batch-method", default="ransac", help="method for the batch throughput (default ransac)")
+    ap.add_argument("--track-frames", default="50,500",
+                    help="frame counts for the track memory test (default 50,500; 'none' = skip)")
+    ap.add_argument("--track-method", default="ransac", help="method for the track memory test")
+    ap.add_argument("--track-cycle", type=int, default=4,
+                    help="distinct synthetic frames rendered and replayed ping-pong (default 4)")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny CI run: 2 pairs, 1 repeat, first method only, coarsest level only, "
+                         "batch 2, track 3 vs 6 frames, OpenCV rgb peer only")
+    ap.add_argument("--out", default=str(common.RESULTS / "speed.md"), help="markdown output (json beside it)")
+    args = ap.parse_args(argv)
+    args.methods = [m for m in args.methods.split(",") if m]
+    for m in args.methods:
+        if m not in METHODS:
+            raise SystemExit(f"unknown method {m!r}; choose from {METHODS}")
+    if args.quick:
+        args.pairs, args.repeats = min(args.pairs, 2), 1
+        args.methods = args.methods[:1]
+        if args.peers == "peers":
+            args.peers = "opencv-rgb"
+        if args.batch == "1,4,8":
+            args.batch = "2"
+        if args.track_frames == "50,500":
+            args.track_frames = "3,6"
+        args.track_cycle = min(args.track_cycle, 2)
+        if args.batch_method == "ransac":
+            args.batch_method = args.methods[0]
+        if args.track_method == "ransac":
+            args.track_method = args.methods[0]
+    args.level_methods = (args.methods if args.level_methods is None else
+                          [] if args.level_methods == "none" else args.level_methods.split(","))
+    args.batch = [] if args.batch == "none" else [int(b) for b in args.batch.split(",")]
+    args.track_frames = [] if args.track_frames == "none" else [int(n) for n in args.track_frames.split(",")]
+    args.peer_list = [] if args.peers == "none" else common.parse_methods(args.peers)
+    return args
+
+
+# ----------------------------------------------------------------------------- data
+
+def load_pairs(path, n_pairs: int, name: str):
+    """n_pairs consecutive pairs (k, k+1) spread evenly over the sequence; frames decoded into memory."""
+    seq = common.open_sequence(path)
+    N = len(seq)
+    starts = np.unique(np.linspace(0, N - 2, num=min(n_pairs, N - 1)).round().astype(int))
+    idx = sorted(set(starts.tolist()) | set((starts + 1).tolist()))
+    frames_by_idx = {i: seq.frame(i) for i in idx}
+    order = {i: k for k, i in enumerate(idx)}
+    frames = [frames_by_idx[i] for i in idx]
+    pairs = [(order[s], order[s + 1]) for s in starts]
+    common.log(f"[speed] {name}: {seq.name}, {len(pairs)} pairs from {N} frames")
+    return seq, frames, pairs
+
+
+def _resolve(arg, name, sub):
+    if arg:
+        return Path(arg)
+    p = common.datasets.data_root() / sub / name
+    if not p.is_dir():
+        raise SystemExit(f"missing sequence {p} (pass --static/--dynamic or set JAXVO_DATA)")
+    return p
+
+
+# ----------------------------------------------------------------------------- sections
+
+def time_methods(sets, methods, repeats, key):
+    """Per method and pair set: compile time and per-pair timings over ``repeats`` passes."""
+    rows = []
+    for m in methods:
+        for set_name, (seq, frames, pairs) in sets.items():
+            secs, hyps = [], []
+            compile_s = None
+            for rep in range(repeats):
+                r = common.run_method(m, frames, seq.camera, Config(), key, pairs, warmup=(rep == 0))
+                if rep == 0:
+                    compile_s = r["compile_s"]
+                secs.append(r["seconds"])
+                hyps.append(r["hypotheses"])
+            st = common.timing_stats(np.concatenate(secs))
+            hy = np.concatenate(hyps)
+            paper = common.PAPER_FPS.get(m if m != "ransac" else f"ransac-{set_name}")
+            rows.append({"method": m, "set": set_name, "sequence": seq.name, "pairs": len(pairs),
+                         "compile_s": compile_s if set_name == next(iter(sets)) else None,
+                         "hypotheses_mean": float(hy.mean()) if m == "ransac" else None,
+                         "hypotheses_max": int(hy.max()) if m == "ransac" else None,
+                         "paper_fps": paper, **st, "peak_rss_mb": common.peak_rss_mb()})
+            common.log(f"  {m:8s} {set_name:8s} median {st['median_ms']:.1f} ms  p90 {st['p90_ms']:.1f} ms  "
+                       f"{st['fps']:.1f} FPS" + (f"  hyps {hy.mean():.1f}" if m == "ransac" else "")
+                       + (f"  compile {compile_s:.1f} s" if rows[-1]["compile_s"] else ""))
+    return rows
+
+
+def time_levels(seq, frames, pairs, methods, repeats, key, quick: bool):
+    """t(finest_level=l) for each level l, and the per-level differences."""
+    from jaxvo.pyramid import num_levels_for
+    cam = seq.camera
+    L = num_levels_for(cam.width, cam.height)
+    levels = [L - 1] if quick else list(range(L - 1, -1, -1))
+    rows = []
+    for m in methods:
+        cum = {}
+        for lv in levels:
+            cfg = Config(method=m, finest_level=lv)
+            t0 = time.perf_counter()
+            common.time_jaxvo_pair(frames[pairs[0][0]], frames[pairs[0][1]], cam, cfg, key)
+            comp = time.perf_counter() - t0
+            s = []
+            for _ in range(repeats):
+                for k, (i, j) in enumerate(pairs):
+                    s.append(common.time_jaxvo_pair(frames[i], frames[j], cam, cfg, jax.random.fold_in(key, k))[1])
+            cum[lv] = (float(np.median(s)) * 1000, comp)
+        for lv in levels:
+            coarser = cum.get(lv + 1, (0.0, None))[0]
+            w, h = cam.width >> lv, cam.height >> lv
+            rows.append({"method": m, "level": lv, "size": f"{w}x{h}", "cumulative_ms": cum[lv][0],
+                         "level_ms": cum[lv][0] - coarser, "compile_s": cum[lv][1]})
+            common.log(f"  {m:8s} level {lv} ({w}x{h}): through this level {cum[lv][0]:.1f} ms, "
+                       f"this level {cum[lv][0] - coarser:.1f} ms")
+    return rows
+
+
+def time_peers(sets, peer_names, repeats):
+    rows = []
+    for name in peer_names:
+        if not common.peer_available(name):
+            common.log(f"  {name}: not available, skipped")
+            continue
+        for set_name, (seq, frames, pairs) in sets.items():
+            secs, fails = [], 0
+            for rep in range(repeats):
+                r = common.run_method(name, frames, seq.camera, pairs=pairs, warmup=(rep == 0))
+                secs.append(r["seconds"])
+                fails += int(np.sum(~r["valid"]))
+            st = common.timing_stats(np.concatenate(secs))
+            rows.append({"method": name, "set": set_name, "failures": fails, **st})
+            common.log(f"  {name:14s} {set_name:8s} median {st['median_ms']:.1f} ms  p90 {st['p90_ms']:.1f} ms")
+    return rows
+
+
+def _one_pair(ri, rd, ci, cd, key, camera, config):
+    return estimate_motion(Frame(ri, rd), Frame(ci, cd), camera, config, key).T_cur_ref
+
+
+#: jit(vmap(estimate_motion)) over stacked pairs; frames, keys, camera and config are arguments.
+BATCHED = jax.jit(jax.vmap(_one_pair, in_axes=(0, 0, 0, 0, 0, None, None)))
+
+
+def time_batches(seq, frames, pairs, batch_sizes, method, repeats, key):
+    """Throughput of B pairs per jit(vmap) call vs one pair per call, per jax device kind."""
+    cfg = Config(method=method)
+    cam = seq.camera
+    devices = {"cpu": jax.devices("cpu")[0]}
+    try:
+        gpus = jax.devices("gpu")
+        if gpus:
+            devices["gpu"] = gpus[0]
+    except RuntimeError:
+        pass
+    rows = []
+    for dev_name, dev in devices.items():
+        with jax.default_device(dev):
+            # one pair per call, the ordinary estimate_motion
+            est0, _ = common.time_jaxvo_pair(frames[pairs[0][0]], frames[pairs[0][1]], cam, cfg, key)
+            s = []
+            for _ in range(repeats):
+                for k, (i, j) in enumerate(pairs):
+                    s.append(common.time_jaxvo_pair(frames[i], frames[j], cam, cfg, jax.random.fold_in(key, k))[1])
+            single = float(np.median(s))
+            rows.append({"device": dev_name, "method": method, "batch": "1 (loop)", "call_ms": single * 1000,
+                         "pairs_per_s": 1.0 / single, "speedup": 1.0, "compile_s": None,
+                         "max_dev_vs_loop": 0.0})
+            for B in batch_sizes:
+                sel = [pairs[k % len(pairs)] for k in range(B)]
+                keys = jnp.stack([jax.random.fold_in(key, k % len(pairs)) for k in range(B)])
+                stack = [np.stack([getattr(frames[p[a]], f) for p in sel])
+                         for a, f in ((0, "intensity"), (0, "depth"), (1, "intensity"), (1, "depth"))]
+                args = [jax.device_put(x, dev) for x in stack] + [keys]
+                t0 = time.perf_counter()
+                out = jax.block_until_ready(BATCHED(*args, cam, cfg))
+                comp = time.perf_counter() - t0
+                ts = []
+                for _ in range(max(repeats, 1)):
+                    # the transfer of the stacked frames counts, as in the per-pair loop
+                    t0 = time.perf_counter()
+                    out = jax.block_until_ready(BATCHED(*[jnp.asarray(x) for x in stack], keys, cam, cfg))
+                    ts.append(time.perf_counter() - t0)
+                call = float(np.median(ts))
+                # agreement with the unbatched estimate of the first pair
+                dev_err = float(np.max(np.abs(np.asarray(out[0]) - np.asarray(est0.T_cur_ref))))
+                rows.append({"device": dev_name, "method": method, "batch": B, "call_ms": call * 1000,
+                             "pairs_per_s": B / call, "speedup": (B / call) * single, "compile_s": comp,
+                             "max_dev_vs_loop": dev_err})
+                common.log(f"  {dev_name} batch {B}: {call * 1000:.1f} ms/call, {B / call:.1f} pairs/s "
+                           f"({(B / call) * single:.2f}x the loop), compile {comp:.1f} s")
+    return rows
+
+
+def track_memory(frame_counts, method, cycle: int, key):
+    """RSS of ``track`` over N lazily produced frames of the synthetic 'seq0' sequence.
+
+    ``cycle`` frames are rendered once; the generator replays them ping-pong
+    (0, 1, ..., c-1, c-2, ..., 0, 1, ...) so consecutive frames stay a plausible small motion,
+    and yields a fresh copy each time (a new frame allocation per step, like a reader).
+    """
+    from jaxvo.synthetic import make_sequence
+    syn = make_sequence("seq0", frames=max(cycle, 2), seed=0)
+    rendered = [syn.render(k).frame() for k in range(max(cycle, 2))]
+    period = 2 * len(rendered) - 2
+    cfg = Config(method=method)
+
+    def frames(n):
+        for k in range(n):
+            p = k % period
+            f = rendered[p if p < len(rendered) else period - p]
+            yield Frame(f.intensity.copy(), f.depth.copy())
+
+    rows = []
+    # warm up (compile) so the first measured run does not count compilation memory
+    track(frames(2), syn.camera, cfg, key)
+    for n in frame_counts:
+        samples = []
+
+        def cb(i, est, pose):
+            if i % max(1, n // 20) == 0:
+                samples.append(common.current_rss_mb())
+        rss0 = common.current_rss_mb()
+        t0 = time.perf_counter()
+        tr = track(frames(n), syn.camera, cfg, key, callback=cb)
+        wall = time.perf_counter() - t0
+        rss1 = common.current_rss_mb()
+        rows.append({"method": method, "frames": n, "rss_before_mb": rss0, "rss_after_mb": rss1,
+                     "rss_max_sampled_mb": max(samples) if samples else rss1,
+                     "rss_growth_mb": (max(samples) if samples else rss1) - rss0,
+                     "peak_rss_mb": common.peak_rss_mb(), "ms_per_pair": 1000 * wall / max(n - 1, 1),
+                     "valid_pairs": int(tr.valid.sum())})
+        common.log(f"  track {n} frames: RSS {rss0:.0f} -> {rss1:.0f} MiB (max sampled "
+                   f"{rows[-1]['rss_max_sampled_mb']:.0f}), peak {common.peak_rss_mb():.0f} MiB")
+    return rows
+
+
+# ----------------------------------------------------------------------------- report
+
+def main(argv=None) -> Path:
+    args = parse_args(argv)
+    key = jax.random.key(0)
+    t_start = time.perf_counter()
+    static = load_pairs(_resolve(args.static, STATIC, "tum"), args.pairs, "static")
+    dynamic = load_pairs(_resolve(args.dynamic, DYNAMIC, "bonn"), args.pairs, "dynamic")
+    sets = {"static": static, "dynamic": dynamic}
+    rss_start = common.peak_rss_mb()
+
+    common.log("[speed] methods")
+    mrows = time_methods(sets, args.methods, args.repeats, key)
+    common.log("[speed] per level (static pairs)")
+    lrows = time_levels(*static, args.level_methods, args.repeats, key, args.quick) if args.level_methods else []
+    common.log("[speed] peers")
+    prows = time_peers(sets, args.peer_list, args.repeats)
+    common.log("[speed] batch (vmap over pairs)")
+    brows = (time_batches(*static, args.batch, args.batch_method, args.repeats, key) if args.batch else [])
+    common.log("[speed] track memory")
+    trows = track_memory(args.track_frames, args.track_method, args.track_cycle, key) if args.track_frames else []
+
+    # ratio table: jaxvo median / peer median on the same set
+    ratio_rows = []
+    for mr in mrows:
+        r = {"method": mr["method"], "set": mr["set"], "median_ms": mr["median_ms"]}
+        for pr in prows:
+            if pr["set"] == mr["set"]:
+                r[pr["method"]] = mr["median_ms"] / pr["median_ms"]
+        ratio_rows.append(r)
+    peer_cols = list(dict.fromkeys(p["method"] for p in prows))
+
+    lines = common.provenance_md("Speed per 640x480 frame pair", __file__, argv)
+    lines += [
+        f"Pairs: {len(static[2])} static ({static[0].name}) and {len(dynamic[2])} dynamic ({dynamic[0].name}) "
+        f"consecutive pairs spread over each sequence, decoded into memory first; each timed {args.repeats}x. "
+        "A time is the wall time of one `estimate_motion` call including the host-to-device copy of both "
+        "frames, blocked until the result is ready (`jax.block_until_ready`), after compilation; peers "
+        "likewise include their input conversion and frame preparation. Compile: the first call (trace + "
+        "XLA compile + one run). Hypotheses: RANSAC hypotheses evaluated per pair, summed over the "
+        "pyramid levels (early exit included).", "",
+        "## Per method", "",
+    ]
+    lines += common.md_table(mrows, [
+        ("method", "method", ""), ("pairs", "set", ""), ("median ms", "median_ms", ".1f"),
+        ("p90 ms", "p90_ms", ".1f"), ("FPS", "fps", ".1f"), ("paper FPS (Table III)", "paper_fps", ".0f"),
+        ("compile s", "compile_s", ".1f"), ("RANSAC hyps mean", "hypotheses_mean", ".1f"),
+        ("RANSAC hyps max", "hypotheses_max", "d")]) + [""]
+    if lrows:
+        lines += ["## Per pyramid level (static pairs)", "",
+                  "`through` = median time of `Config(finest_level=l)` (levels L-1 .. l); `level` = its "
+                  "difference to the next coarser run, i.e. the cost of level l.", ""]
+        lines += common.md_table(lrows, [("method", "method", ""), ("level", "level", "d"), ("size", "size", ""),
+                                         ("through ms", "cumulative_ms", ".1f"), ("level ms", "level_ms", ".1f"),
+                                         ("compile s", "compile_s", ".1f")]) + [""]
+    if prows:
+        lines += ["## Peers on the same pairs", ""]
+        lines += common.md_table(prows, [("peer", "method", ""), ("pairs", "set", ""),
+                                         ("median ms", "median_ms", ".1f"), ("p90 ms", "p90_ms", ".1f"),
+                                         ("FPS", "fps", ".1f"), ("failed", "failures", "d")]) + [""]
+        lines += ["## Ratio jaxvo / peer (median time; < 1 = jaxvo faster)", ""]
+        lines += common.md_table(ratio_rows, [("method", "method", ""), ("pairs", "set", ""),
+                                              ("jaxvo ms", "median_ms", ".1f")]
+                                 + [(p, p, ".2f") for p in peer_cols]) + [""]
+        lines += _targets(mrows, prows)
+    if brows:
+        lines += ["## Batch throughput: `jax.jit(jax.vmap(estimate_motion))` over B stacked pairs", "",
+                  "`speedup` = pairs/s of the batch against the one-pair-per-call loop on the same device; "
+                  "`max dev` = max |T| difference of the batch's first pair from the unbatched estimate.", ""]
+        lines += common.md_table(brows, [("device", "device", ""), ("method", "method", ""), ("B", "batch", ""),
+                                         ("ms/call", "call_ms", ".1f"), ("pairs/s", "pairs_per_s", ".1f"),
+                                         ("speedup", "speedup", ".2f"), ("compile s", "compile_s", ".1f"),
+                                         ("max dev", "max_dev_vs_loop", ".1e")]) + [""]
+        if not any(r["device"] == "gpu" for r in brows):
+            lines += ["No GPU visible to jax on this machine: GPU rows absent.", ""]
+    if trows:
+        lines += ["## Memory of `track` vs sequence length", "",
+                  f"Synthetic `seq0` (640x480): {max(args.track_cycle, 2)} frames rendered once and replayed "
+                  "ping-pong by a generator that yields a fresh copy per step (lazy frames, as a reader "
+                  "would). RSS sampled in the track callback; growth = max sampled - RSS before the call.", ""]
+        lines += common.md_table(trows, [("method", "method", ""), ("frames", "frames", "d"),
+                                         ("RSS before MiB", "rss_before_mb", ".0f"),
+                                         ("RSS max MiB", "rss_max_sampled_mb", ".0f"),
+                                         ("growth MiB", "rss_growth_mb", ".1f"),
+                                         ("process peak MiB", "peak_rss_mb", ".0f"),
+                                         ("ms/pair", "ms_per_pair", ".1f")]) + [""]
+    lines += [f"Peak RSS of the whole process: {common.peak_rss_mb():.0f} MiB (after loading the pairs: "
+              f"{rss_start:.0f} MiB). Total wall time {time.perf_counter() - t_start:.0f} s.", ""]
+    data = {"command": common.command_line(__file__, argv), "machine": common.machine_info(),
+            "methods": mrows, "levels": lrows, "peers": prows, "ratios": ratio_rows, "batch": brows,
+            "track_memory": trows, "peak_rss_mb": common.peak_rss_mb()}
+    out = common.write_outputs(args.out, lines, data)
+    common.log(f"[speed] wrote {out}")
+    return out
+
+
+def _targets(mrows, prows):
+    """The issue's targets: ransac <= 2x OpenCV rgb, classic/huber <= 1x, on this machine."""
+    ref = {p["set"]: p["median_ms"] for p in prows if p["method"] == "opencv-rgb"}
+    if not ref:
+        return []
+    out = ["Targets (per-pair median vs OpenCV rgb on the same pairs): ransac <= 2x, classic and huber <= 1x.", ""]
+    for m in mrows:
+        if m["set"] not in ref:
+            continue
+        lim = 2.0 if m["method"] == "ransac" else 1.0
+        ratio = m["median_ms"] / ref[m["set"]]
+        verdict = "met" if ratio <= lim else f"NOT met ({ratio / lim:.2f}x over the limit)"
+        out.append(f"- {m['method']} ({m['set']}): {ratio:.2f}x OpenCV rgb -> {verdict}")
+    return out + [""]
+
+
+if __name__ == "__main__":
+    main()

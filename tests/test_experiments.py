@@ -1,0 +1,102 @@
+"""The experiment scripts run end to end on tiny inputs (``--quick``: 2-3 frames) and write their outputs.
+
+The scripts are called in-process through ``main(argv)`` so that the estimator is
+compiled once for all three (the compile dominates the cost): every script uses
+the ``classic`` method here, plus OpenCV's RGB odometry as the peer.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from jaxvo.datasets import data_root
+
+REPO = Path(__file__).resolve().parents[1]
+EXP = REPO / "experiments"
+STATIC = data_root() / "tum" / "rgbd_dataset_freiburg2_desk"
+DYNAMIC = data_root() / "bonn" / "rgbd_bonn_crowd"
+
+
+def _require(*paths):
+    for p in paths:
+        if not p.is_dir():
+            pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
+
+
+def _script(name):
+    if str(EXP) not in sys.path:
+        sys.path.insert(0, str(EXP))
+    return importlib.import_module(name)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("aug-cache")
+
+
+@pytest.mark.parametrize("name", ["table1", "speed", "sweep"])
+def test_help(name):
+    r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "usage:" in r.stdout and "--quick" in r.stdout
+
+
+def test_table1_quick(tmp_path, cache):
+    _require(STATIC)
+    out = tmp_path / "table1.md"
+    _script("table1").main([str(STATIC), "--quick", "--methods", "classic,opencv-rgb", "--cache", str(cache),
+                            "--out", str(out)])
+    text = out.read_text()
+    assert "python experiments/table1.py" in text and "CPUs" in text and "jax " in text
+    assert "| rgbd_dataset_freiburg2_desk | 3 | classic |" in text
+    assert "opencv-rgb" in text and "Dynamic augmentations" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    rows = {(r["kind"], r["method"]): r for r in data["rows"]}
+    assert set(rows) == {("real", "classic"), ("real", "opencv-rgb"),
+                         ("augmented", "classic"), ("augmented", "opencv-rgb")}
+    for r in rows.values():
+        assert r["rpef_t"] is not None and 0 <= r["rpef_t"] < 0.05  # m per frame, sane
+        assert r["ate"] is not None
+        assert r["rpe1s_t"] is None  # 3 frames span < 1 s
+
+
+def test_speed_quick(tmp_path):
+    _require(STATIC, DYNAMIC)
+    out = tmp_path / "speed.md"
+    _script("speed").main(["--quick", "--methods", "classic", "--batch", "1", "--out", str(out)])
+    text = out.read_text()
+    assert "python experiments/speed.py" in text and "CPUs" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert {(r["method"], r["set"]) for r in data["methods"]} == {("classic", "static"), ("classic", "dynamic")}
+    for r in data["methods"]:
+        assert r["median_ms"] > 0 and r["fps"] > 0
+    assert data["methods"][0]["compile_s"] > 0
+    assert data["levels"] and data["levels"][0]["level"] == 3
+    assert [r["method"] for r in data["peers"]] == ["opencv-rgb", "opencv-rgb"]
+    assert "opencv-rgb" in data["ratios"][0]
+    assert {r["device"] for r in data["batch"]} >= {"cpu"}
+    assert all(r["max_dev_vs_loop"] < 1e-3 for r in data["batch"])
+    assert [r["frames"] for r in data["track_memory"]] == [3, 6]
+    assert data["peak_rss_mb"] > 0
+
+
+def test_sweep_quick(tmp_path, cache):
+    _require(STATIC)
+    out = tmp_path / "sweep.md"
+    _script("sweep").main([str(STATIC), "--quick", "--method", "classic", "--cache", str(cache),
+                           "--out", str(out)])
+    assert out.with_suffix(".png").stat().st_size > 1000
+    text = out.read_text()
+    assert "python experiments/sweep.py" in text and "CPUs" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [r["label"] for r in data["results"]] == ["real", "augmented"]
+    for r in data["results"]:
+        assert r["cells"] == 2 * 2 + 2 and len(r["scores"]) == r["cells"]
+        assert r["max_abs_diff"] < 1e-3  # the vmapped grid equals separate calls
+        assert all(s["rpef_t"] is not None for s in r["scores"])

@@ -1,0 +1,189 @@
+"""Tests of jaxvo.ransac: hypothesis count, inlier test, patch sampling, one RANSAC level."""
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxvo import geometry as G
+from jaxvo.camera import DEFAULT
+from jaxvo.pyramid import build_pyramid
+from jaxvo.ransac import inliers, num_hypotheses, ransac_level, sample_patches
+from jaxvo.residuals import Residuals, reference_points
+
+CAM = DEFAULT.at_level(3)          # 80 x 60
+H, W = CAM.height, CAM.width
+
+
+# --------------------------------------------------------------------------- k
+
+# k = ceil(log(1 - p) / log(1 - (1 - w)^n)), evaluated by hand:
+#   0.99, 0.3, 6: log 0.01 / log(1 - 0.117649) = -4.60517 / -0.125163 = 36.79 -> 37
+#   0.99, 0.5, 6: -4.60517 / log(0.984375) = 292.4 -> 293
+#   0.95, 0.3, 6: -2.99573 / -0.125163 = 23.93 -> 24
+#   0.99, 0.3, 1: -4.60517 / log 0.3 = 3.82 -> 4
+#   0.999, 0.3, 6: -6.90776 / -0.125163 = 55.19 -> 56
+#   0.99, 0.3, 8: -4.60517 / log(1 - 0.7^8) = 77.56 -> 78
+CASES = [(0.99, 0.3, 6, 37), (0.99, 0.5, 6, 293), (0.95, 0.3, 6, 24), (0.99, 0.3, 1, 4),
+         (0.999, 0.3, 6, 56), (0.99, 0.3, 8, 78)]
+
+
+@pytest.mark.parametrize("p,w,n,k", CASES)
+def test_num_hypotheses_hand_computed(p, w, n, k):
+    assert int(num_hypotheses(p, w, n)) == k
+
+
+def test_num_hypotheses_traced():
+    f = jax.jit(num_hypotheses, static_argnums=2)
+    for p, w, n, k in CASES:
+        assert int(f(jnp.float32(p), jnp.float32(w), n)) == k
+    ws = jnp.asarray([0.3, 0.5], jnp.float32)
+    ks = jax.jit(jax.vmap(lambda w: num_hypotheses(0.99, w, 6)))(ws)
+    np.testing.assert_array_equal(np.asarray(ks), [37, 293])
+    assert jnp.issubdtype(ks.dtype, jnp.integer)
+
+
+def test_num_hypotheses_without_outliers_is_one():
+    """w = 0: every sample is all-inlier, so one draw suffices (never zero draws)."""
+    assert int(num_hypotheses(0.99, 0.0, 6)) == 1
+    assert int(num_hypotheses(0.5, 0.0, 1)) == 1
+
+
+# --------------------------------------------------------------------------- inliers
+
+def test_inliers_thresholds():
+    r_int = jnp.asarray([0.0, 29.9, 30.0, -29.9, -30.0, 10.0, 10.0, 10.0, 0.0])
+    r_dep = jnp.asarray([0.0, 0.049, 0.0, -0.049, 0.0, 0.05, -0.05, 0.0, 0.0])
+    valid = jnp.asarray([True] * 8 + [False])
+    res = Residuals(r_int, valid, r_dep, valid, r_int, r_int, r_int)
+    got = np.asarray(inliers(res, 30.0, 0.05))
+    np.testing.assert_array_equal(got, [True, True, False, True, False, False, False, True, False])
+    # valid_depth (not only valid_int) is required
+    res2 = res._replace(valid_depth=jnp.zeros(9, bool))
+    assert not np.asarray(inliers(res2, 30.0, 0.05)).any()
+    # thresholds may be traced
+    got = jax.jit(inliers)(res, jnp.float32(10.5), jnp.float32(0.01))
+    np.testing.assert_array_equal(np.asarray(got), [True, False, False, False, False, False, False, True, False])
+
+
+# --------------------------------------------------------------------------- patches
+
+def _level(depth):
+    rng = np.random.default_rng(0)
+    return build_pyramid(rng.uniform(0, 255, depth.shape).astype(np.float32), depth, 1)[0]
+
+
+_sample = jax.jit(sample_patches, static_argnames=("n", "batch", "radius"))
+
+
+def test_sample_patches_are_3x3_neighbourhoods_of_valid_centres():
+    depth = np.zeros((H, W), np.float32)
+    depth[10:50, 5:60] = 2.0
+    depth[0, :] = 1.0                       # valid, but on the border: never a centre
+    depth[:, W - 1] = 1.0
+    lev = _level(depth)
+    n, batch = 6, 16
+    pu, pv = _sample(jax.random.PRNGKey(0), lev, n=n, batch=batch, radius=1)
+    pu, pv = np.asarray(pu), np.asarray(pv)
+    assert pu.shape == (batch, n * 9) and pv.shape == (batch, n * 9)
+    pu, pv = pu.reshape(batch, n, 9), pv.reshape(batch, n, 9)
+    cu, cv = pu[..., 4], pv[..., 4]
+    du, dv = pu - cu[..., None], pv - cv[..., None]
+    offsets = sorted(zip(du[0, 0].tolist(), dv[0, 0].tolist()))
+    assert offsets == [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    assert np.all(du == du[0, 0]) and np.all(dv == dv[0, 0])
+    assert np.all(depth[cv, cu] > 0)
+    assert np.all((cu >= 1) & (cu <= W - 2) & (cv >= 1) & (cv <= H - 2))
+    assert np.all((pu >= 0) & (pu < W) & (pv >= 0) & (pv < H))
+    assert np.all((cu >= 5) & (cu < 60) & (cv >= 10) & (cv < 50))
+
+
+def test_sample_patches_radius_2():
+    depth = np.full((H, W), 2.0, np.float32)
+    pu, pv = _sample(jax.random.PRNGKey(3), _level(depth), n=2, batch=4, radius=2)
+    pu, pv = np.asarray(pu).reshape(4, 2, 25), np.asarray(pv).reshape(4, 2, 25)
+    cu, cv = pu[..., 12], pv[..., 12]
+    assert np.all((cu >= 2) & (cu <= W - 3) & (cv >= 2) & (cv <= H - 3))
+    assert set(np.unique(pu - cu[..., None])) == {-2, -1, 0, 1, 2}
+
+
+def test_sample_patches_deterministic_per_key():
+    lev = _level(np.full((H, W), 2.0, np.float32))
+    a = _sample(jax.random.PRNGKey(7), lev, n=6, batch=8, radius=1)
+    b = _sample(jax.random.PRNGKey(7), lev, n=6, batch=8, radius=1)
+    c = _sample(jax.random.PRNGKey(8), lev, n=6, batch=8, radius=1)
+    np.testing.assert_array_equal(np.asarray(a[0]), np.asarray(b[0]))
+    np.testing.assert_array_equal(np.asarray(a[1]), np.asarray(b[1]))
+    assert not (np.array_equal(np.asarray(a[0]), np.asarray(c[0])) and
+                np.array_equal(np.asarray(a[1]), np.asarray(c[1])))
+
+
+def test_sample_patches_sparse_valid_pixels():
+    depth = np.zeros((H, W), np.float32)
+    allowed = {(10, 10), (30, 20), (70, 50)}          # (u, v)
+    for u, v in allowed:
+        depth[v, u] = 1.5
+    depth[0, 0] = depth[59, 79] = 1.0                 # border: excluded
+    pu, pv = _sample(jax.random.PRNGKey(1), _level(depth), n=6, batch=64, radius=1)
+    cu = np.asarray(pu).reshape(64, 6, 9)[..., 4].ravel()
+    cv = np.asarray(pv).reshape(64, 6, 9)[..., 4].ravel()
+    seen = set(zip(cu.tolist(), cv.tolist()))
+    assert seen == allowed
+
+
+# --------------------------------------------------------------------------- one level
+
+N_PLANE = np.array([0.1, -0.15, 1.0]) / np.linalg.norm([0.1, -0.15, 1.0])
+T_TRUE = G.exp(np.array([0.01, -0.012, 0.006, 0.02, -0.01, 0.025]))
+
+
+def _render(T_cam_ref):
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    rays = np.stack([(u - CAM.cx) / CAM.fx, (v - CAM.cy) / CAM.fy, np.ones_like(u)], -1)
+    R, t = T_cam_ref[:3, :3], T_cam_ref[:3, 3]
+    n_c = R @ N_PLANE
+    Z = (2.0 + n_c @ t) / (rays @ n_c)
+    P = (Z[..., None] * rays - t) @ R
+    e1 = np.cross(N_PLANE, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    s, q = P @ e1, P @ np.cross(N_PLANE, e1)
+    img = 128 + 50 * np.sin(2 * np.pi * s / 0.7) + 40 * np.cos(2 * np.pi * q / 0.55 + 0.5)
+    return img.astype(np.float32), Z.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def level_pair():
+    ref = build_pyramid(*_render(np.eye(4)), 1)[0]
+    cur = build_pyramid(*_render(T_TRUE), 1)[0]
+    return ref, cur, reference_points(ref, CAM, stride=2)
+
+
+@functools.partial(jax.jit, static_argnames=("max_hypotheses",))
+def _ransac(T_init, ref, cur, pts, key, thresh_lum, max_hypotheses=8):
+    return ransac_level(T_init, ref, cur, CAM, pts, key, p=0.99, w=0.3, thresh_lum=thresh_lum,
+                        thresh_depth=0.05, early_exit_ratio=0.9, n=6, radius=1,
+                        max_hypotheses=max_hypotheses, batch_size=4, hypothesis_iterations=8)
+
+
+def test_ransac_level(level_pair):
+    ref, cur, pts = level_pair
+    key = jax.random.PRNGKey(0)
+    # starting at the truth: the initial pose passes the early exit, no hypothesis is drawn
+    r = _ransac(jnp.asarray(T_TRUE, jnp.float32), ref, cur, pts, key, jnp.float32(30.0))
+    assert int(r.hypotheses) == 0 and float(r.inlier_ratio) > 0.9
+    np.testing.assert_allclose(np.asarray(r.T), T_TRUE, atol=1e-6)
+    # from the identity with a strict threshold: hypotheses are drawn (at most the cap)
+    # and the best one scores at least as well as the start
+    r0 = _ransac(jnp.eye(4), ref, cur, pts, jnp.asarray(key), jnp.float32(3.0))
+    r_id = _ransac(jnp.eye(4), ref, cur, pts, key, jnp.float32(3.0))
+    assert 0 < int(r_id.hypotheses) <= 8 and int(r_id.hypotheses) % 4 == 0
+    assert 0.0 <= float(r_id.inlier_ratio) <= 1.0
+    # same key -> bitwise identical
+    np.testing.assert_array_equal(np.asarray(r0.T), np.asarray(r_id.T))
+    assert float(r0.inlier_ratio) == float(r_id.inlier_ratio)
+    # the hypotheses move the pose towards the truth
+    d_id = np.linalg.norm(G.log(np.asarray(r_id.T, np.float64) @ G.inverse(T_TRUE)))
+    assert d_id < np.linalg.norm(G.log(G.inverse(T_TRUE)))
