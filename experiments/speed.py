@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
-from jaxvo.odometry import METHODS, Config, estimate_motion, track  # noqa: E402
+from jaxvo.odometry import METHODS, Config, estimate_motion, trace_count, track  # noqa: E402
 
 STATIC = "rgbd_dataset_freiburg2_desk"
 DYNAMIC = "rgbd_bonn_crowd"
@@ -234,17 +234,21 @@ def time_batches(seq, frames, pairs, batch_sizes, method, repeats, key):
                 keys = jnp.stack([jax.random.fold_in(key, k % len(pairs)) for k in range(B)])
                 stack = [np.stack([getattr(frames[p[a]], f) for p in sel])
                          for a, f in ((0, "intensity"), (0, "depth"), (1, "intensity"), (1, "depth"))]
+                keys = jax.device_put(keys, dev)
                 args = [jax.device_put(x, dev) for x in stack] + [keys]
                 t0 = time.perf_counter()
                 out = jax.block_until_ready(BATCHED(*args, cam, cfg))
                 comp = time.perf_counter() - t0
                 ts = []
+                traces0 = trace_count()
                 for _ in range(max(repeats, 1)):
                     # the transfer of the stacked frames counts, as in the per-pair loop
                     t0 = time.perf_counter()
-                    out = jax.block_until_ready(BATCHED(*[jnp.asarray(x) for x in stack], keys, cam, cfg))
+                    out = jax.block_until_ready(BATCHED(*[jax.device_put(x, dev) for x in stack], keys, cam, cfg))
                     ts.append(time.perf_counter() - t0)
                 call = float(np.median(ts))
+                if trace_count() != traces0:
+                    common.log("  WARNING: the batched function was retraced inside the timed loop")
                 # agreement with the unbatched estimate of the first pair
                 dev_err = float(np.max(np.abs(np.asarray(out[0]) - np.asarray(est0.T_cur_ref))))
                 rows.append({"device": dev_name, "method": method, "batch": B, "call_ms": call * 1000,

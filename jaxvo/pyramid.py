@@ -14,7 +14,8 @@ from typing import NamedTuple, Tuple
 
 import jax.numpy as jnp
 
-__all__ = ["Level", "sanitize_depth", "downsample", "gradients", "build_pyramid", "num_levels_for"]
+__all__ = ["Level", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
+           "num_levels_for"]
 
 
 class Level(NamedTuple):
@@ -23,10 +24,14 @@ class Level(NamedTuple):
     intensity: (h, w) luminance 0-255. depth: (h, w) metres, 0 = invalid.
     igrad: (h, w, 3) intensity, d intensity / d u (column), d intensity / d v (row)
     stacked, so that one bilinear gather samples all three at a warped pixel.
+    dgrad: (h, w, 4) depth, d depth / d u, d depth / d v (metres per pixel) and a
+    smoothness flag (1 where the pixel and its 4 neighbours have valid depth with
+    no discontinuity, else 0), for the depth term of the joint RGB-D residual.
     """
     intensity: jnp.ndarray
     depth: jnp.ndarray
     igrad: jnp.ndarray
+    dgrad: jnp.ndarray
 
 
 def sanitize_depth(depth, max_depth, min_depth=0.0):
@@ -56,6 +61,23 @@ def gradients(intensity):
     return gu, gv
 
 
+def depth_gradients(depth, max_jump=0.05):
+    """(h, w) depth -> (h, w, 4): depth, d/du, d/dv, smooth flag.
+
+    Central differences; the flag is 1 only where the pixel and its four
+    neighbours are valid and neighbouring depths differ by less than
+    ``max_jump`` metres per metre of depth (a depth edge has no useful derivative).
+    """
+    d = depth
+    p = jnp.pad(d, 1, mode="edge")
+    left, right, up, down = p[1:-1, :-2], p[1:-1, 2:], p[:-2, 1:-1], p[2:, 1:-1]
+    gu, gv = 0.5 * (right - left), 0.5 * (down - up)
+    allvalid = (d > 0) & (left > 0) & (right > 0) & (up > 0) & (down > 0)
+    smooth = allvalid & (jnp.abs(right - left) < 2 * max_jump * d) & (jnp.abs(down - up) < 2 * max_jump * d)
+    f = smooth.astype(jnp.float32)
+    return jnp.stack([d, gu * f, gv * f, f], -1)
+
+
 def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0) -> Tuple[Level, ...]:
     """(H, W) intensity and depth -> tuple of ``num_levels`` Levels, index 0 = full resolution.
 
@@ -68,7 +90,7 @@ def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0) -> Tuple[Lev
         if l > 0:
             i, d = downsample(i, d)
         gu, gv = gradients(i)
-        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1)))
+        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d)))
     return tuple(levels)
 
 

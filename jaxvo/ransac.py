@@ -43,7 +43,8 @@ def num_hypotheses(p, w, n):
     Python floats and on traced JAX values.
     """
     good = (1.0 - w) ** n
-    return jnp.ceil(jnp.log(1.0 - p) / jnp.log1p(-good)).astype(jnp.int32)
+    # at least one draw (w = 0 would give log(1-p) / -inf = 0)
+    return jnp.maximum(jnp.ceil(jnp.log(1.0 - p) / jnp.log1p(-good)), 1).astype(jnp.int32)
 
 
 def inliers(res: Residuals, thresh_lum, thresh_depth):
@@ -84,11 +85,14 @@ class RansacResult(NamedTuple):
 
 def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, score_ref: RefPoints, key, *,
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
-                 max_hypotheses: int, batch_size: int, hypothesis_iterations: int) -> RansacResult:
+                 max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
+                 depth_weight=None) -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
-    reference points the hypotheses are scored on. The inlier ratio's
+    reference points the hypotheses are scored on. depth_weight: None fits each
+    hypothesis on the photometric residual only (the paper); a number adds the
+    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose`). The inlier ratio's
     denominator is the number of scoring points with valid reference depth.
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
@@ -100,7 +104,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     def hypothesis(pu, pv):
         pts = gather_points(ref_level, camera, pu, pv)
         return solve_pose(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
-                          hypothesis_iterations).T
+                          hypothesis_iterations, depth_weight=depth_weight).T
 
     def cond(state):
         b, _, best, _ = state

@@ -10,12 +10,14 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
-from jaxvo.pyramid import build_pyramid
+from jaxvo import pyramid
 from jaxvo.ransac import inliers, num_hypotheses, ransac_level, sample_patches
 from jaxvo.residuals import Residuals, reference_points
 
 CAM = DEFAULT.at_level(3)          # 80 x 60
 H, W = CAM.height, CAM.width
+
+build_pyramid = jax.jit(pyramid.build_pyramid, static_argnums=(2,))
 
 
 # --------------------------------------------------------------------------- k

@@ -8,7 +8,8 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
-from jaxvo.pyramid import Level, build_pyramid
+from jaxvo import pyramid
+from jaxvo.pyramid import Level
 from jaxvo.residuals import (RefPoints, photometric_terms, reference_points, residuals, sample_bilinear,
                              sample_nearest, select_points, warp, warp_jacobian)
 
@@ -16,6 +17,8 @@ CAM = DEFAULT.at_level(2)          # 160 x 120, fx = 131.25, c = (79.5, 59.5)
 H, W = CAM.height, CAM.width
 XI0 = np.array([0.02, -0.03, 0.015, 0.05, -0.03, 0.08])
 T0 = G.exp(XI0)                    # float64, non-trivial
+
+build_pyramid = jax.jit(pyramid.build_pyramid, static_argnums=(2,))
 
 
 def _image(u, v):

@@ -10,7 +10,7 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
-from jaxvo.pyramid import build_pyramid
+from jaxvo import pyramid
 from jaxvo.residuals import reference_points
 from jaxvo.solvers import huber_weights, irls, robust_scale, solve_pose
 
@@ -20,6 +20,8 @@ N_PLANE = np.array([0.15, -0.1, 1.0]) / np.linalg.norm([0.15, -0.1, 1.0])
 D_PLANE = 2.0
 XI_TRUE = np.array([0.012, -0.015, 0.008, 0.025, -0.015, 0.03])   # ~1.2 deg, ~4.2 cm
 T_TRUE = G.exp(XI_TRUE)            # T_cur_ref
+
+build_pyramid = jax.jit(pyramid.build_pyramid, static_argnums=(2,))
 
 
 def _texture(P):
