@@ -95,7 +95,7 @@ def _nanmed(x) -> float:
 
 COLUMNS = [
     ("sequence", "sequence", ""), ("frames", "frames", "d"), ("method", "method", ""),
-    ("RPE-t 1 s (m/s)", "rpe1s_t", ".4f"), ("paper RPE-t (m/s)", "paper_rpe1s_t", ".4f"),
+    ("RPE-t 1 s (m/s)", "rpe1s_t", ".4f"), ("paper RANSAC RPE-t 1 s (m/s)", "paper_rpe1s_t", ".4f"),
     ("RPE-r 1 s (deg/s)", "rpe1s_r", ".3f"),
     ("RPE-t per frame (mm)", lambda r: None if r["rpef_t"] is None else 1000 * r["rpef_t"], ".2f"),
     ("RPE-r per frame (deg)", "rpef_r", ".3f"), ("ATE (m)", "ate", ".4f"),

@@ -69,6 +69,11 @@ class Config:
       Missing entries mean 1.
     max_score_pixels: *static*, RANSAC scores hypotheses on at most about this many
       reference pixels per level (a regular subgrid); the paper scores all pixels.
+    depth_weight: luminance units per metre of depth residual where a joint RGB-D
+      cost is used (600 = 30 / 0.05: the two inlier thresholds weigh the same).
+    hypothesis_terms: *static*, "photometric" (the paper) or "rgbd": the residuals each
+      RANSAC hypothesis is fitted on.
+    scoring: *static*, "count" (the paper: most inliers) or "msac" (truncated quadratic).
     """
     method: str = "ransac"
     p: Any = 0.99
@@ -91,6 +96,9 @@ class Config:
     refine_rounds: int = 1
     blocks: Tuple[int, ...] = (4, 2, 1, 1)
     max_score_pixels: int = 20000
+    depth_weight: Any = 600.0
+    hypothesis_terms: str = "photometric"
+    scoring: str = "count"
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
@@ -98,6 +106,10 @@ class Config:
     def validate(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.hypothesis_terms not in ("photometric", "rgbd"):
+            raise ValueError(f"config.hypothesis_terms must be 'photometric' or 'rgbd', got {self.hypothesis_terms!r}")
+        if self.scoring not in ("count", "msac"):
+            raise ValueError(f"config.scoring must be 'count' or 'msac', got {self.scoring!r}")
         for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
                      "irls_rounds", "refine_rounds", "max_score_pixels"):
             if int(getattr(self, name)) < 1:
@@ -110,7 +122,7 @@ class Config:
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "blocks",
-           "max_score_pixels"]
+           "max_score_pixels", "hypothesis_terms", "scoring"]
 jax.tree_util.register_dataclass(
     Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
 
@@ -192,7 +204,9 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
                               thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
                               n=config.n_points, radius=config.patch_radius,
                               max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
-                              hypothesis_iterations=config.hypothesis_iterations)
+                              hypothesis_iterations=config.hypothesis_iterations,
+                              depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
+                              scoring=config.scoring)
             hyps[level] = rs.hypotheses
             T = rs.T
             it = jnp.int32(0)

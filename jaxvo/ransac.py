@@ -86,20 +86,30 @@ class RansacResult(NamedTuple):
 def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, score_ref: RefPoints, key, *,
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
                  max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
-                 depth_weight=None) -> RansacResult:
+                 depth_weight=None, scoring: str = "count") -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
     reference points the hypotheses are scored on. depth_weight: None fits each
     hypothesis on the photometric residual only (the paper); a number adds the
-    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose`). The inlier ratio's
+    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose`).
+    scoring: "count" ranks hypotheses by their inlier count (the paper);
+    "msac" by the truncated-quadratic (MSAC, Torr & Zisserman 2000) score
+    sum over inliers of 1 - ((r_I/t_I)^2 + (r_Z/t_Z)^2) / 2, which prefers the
+    hypothesis that aligns its inliers more tightly. The inlier ratio's
     denominator is the number of scoring points with valid reference depth.
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
     n_ref = jnp.maximum(jnp.sum(score_ref.valid), 1).astype(jnp.float32)
 
     def score(T):
-        return jnp.sum(inliers(residuals(T, score_ref, cur_level, camera), thresh_lum, thresh_depth))
+        res = residuals(T, score_ref, cur_level, camera)
+        inl = inliers(res, thresh_lum, thresh_depth)
+        count = jnp.sum(inl)
+        if scoring == "count":
+            return count.astype(jnp.float32), count
+        e2 = 0.5 * ((res.r_int / thresh_lum) ** 2 + (res.r_depth / thresh_depth) ** 2)
+        return jnp.sum(jnp.where(inl, 1.0 - e2, 0.0)), count
 
     def hypothesis(pu, pv):
         pts = gather_points(ref_level, camera, pu, pv)
@@ -107,23 +117,25 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
                           hypothesis_iterations, depth_weight=depth_weight).T
 
     def cond(state):
-        b, _, best, _ = state
-        return (b * batch_size < k) & (best.astype(jnp.float32) / n_ref <= early_exit_ratio)
+        b, _, _, best_count, _ = state
+        return (b * batch_size < k) & (best_count.astype(jnp.float32) / n_ref <= early_exit_ratio)
 
     def body(state):
-        b, T_best, best, evaluated = state
+        b, T_best, best, best_count, evaluated = state
         pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius)
         Ts = jax.vmap(hypothesis)(pu, pv)
-        counts = jax.vmap(score)(Ts)
+        quality, counts = jax.vmap(score)(Ts)
         idx = b * batch_size + jnp.arange(batch_size)
-        counts = jnp.where(idx < k, counts, -1)
-        j = jnp.argmax(counts)
-        better = counts[j] > best
+        quality = jnp.where(idx < k, quality, -jnp.inf)
+        j = jnp.argmax(quality)
+        better = quality[j] > best
         T_best = jnp.where(better, Ts[j], T_best)
-        best = jnp.where(better, counts[j], best)
+        best = jnp.where(better, quality[j], best)
+        best_count = jnp.where(better, counts[j], best_count)
         evaluated = evaluated + jnp.sum(idx < k)
-        return b + 1, T_best, best, evaluated
+        return b + 1, T_best, best, best_count, evaluated
 
-    state = (jnp.int32(0), T_init, score(T_init), jnp.int32(0))
-    _, T_best, best, evaluated = jax.lax.while_loop(cond, body, state)
-    return RansacResult(T_best, best.astype(jnp.float32) / n_ref, evaluated)
+    q0, c0 = score(T_init)
+    state = (jnp.int32(0), T_init, q0, c0, jnp.int32(0))
+    _, T_best, _, best_count, evaluated = jax.lax.while_loop(cond, body, state)
+    return RansacResult(T_best, best_count.astype(jnp.float32) / n_ref, evaluated)
