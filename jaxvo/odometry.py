@@ -71,9 +71,14 @@ class Config:
       reference pixels per level (a regular subgrid); the paper scores all pixels.
     depth_weight: luminance units per metre of depth residual where a joint RGB-D
       cost is used (600 = 30 / 0.05: the two inlier thresholds weigh the same).
+    terms: *static*, "photometric" (the paper) or "rgbd" (photometric + depth residual,
+      the depth term scaled by depth_weight): the cost every refinement minimises.
     hypothesis_terms: *static*, "photometric" (the paper) or "rgbd": the residuals each
       RANSAC hypothesis is fitted on.
     scoring: *static*, "count" (the paper: most inliers) or "msac" (truncated quadratic).
+    score_selection: *static*, which pixels score a hypothesis when there are more than
+      max_score_pixels: "grid" (a regular subgrid) or "gradient" (the strongest-gradient
+      pixel of each tile, so textureless areas that agree with any pose do not dilute it).
     """
     method: str = "ransac"
     p: Any = 0.99
@@ -97,8 +102,10 @@ class Config:
     blocks: Tuple[int, ...] = (4, 2, 1, 1)
     max_score_pixels: int = 20000
     depth_weight: Any = 600.0
+    terms: str = "photometric"
     hypothesis_terms: str = "photometric"
     scoring: str = "count"
+    score_selection: str = "grid"
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
@@ -106,8 +113,12 @@ class Config:
     def validate(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.terms not in ("photometric", "rgbd"):
+            raise ValueError(f"config.terms must be 'photometric' or 'rgbd', got {self.terms!r}")
         if self.hypothesis_terms not in ("photometric", "rgbd"):
             raise ValueError(f"config.hypothesis_terms must be 'photometric' or 'rgbd', got {self.hypothesis_terms!r}")
+        if self.score_selection not in ("grid", "gradient"):
+            raise ValueError(f"config.score_selection must be 'grid' or 'gradient', got {self.score_selection!r}")
         if self.scoring not in ("count", "msac"):
             raise ValueError(f"config.scoring must be 'count' or 'msac', got {self.scoring!r}")
         for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
@@ -122,7 +133,7 @@ class Config:
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "blocks",
-           "max_score_pixels", "hypothesis_terms", "scoring"]
+           "max_score_pixels", "terms", "hypothesis_terms", "scoring", "score_selection"]
 jax.tree_util.register_dataclass(
     Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
 
@@ -180,6 +191,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth)
     cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
     T = T_init
+    dw = config.depth_weight if config.terms == "rgbd" else None
     hyps = [jnp.int32(0)] * L
     iters = [jnp.int32(0)] * L
     sol = None
@@ -189,16 +201,19 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
         pts = select_points(ref_l, cam, _block(config, level))
         ones = pts.valid.astype(jnp.float32)
         if config.method == "classic":
-            sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations)
+            sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
             iters[level] = sol.iterations
         elif config.method == "huber":
             inner = max(1, config.max_iterations // config.irls_rounds)
-            sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner)
+            sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
             iters[level] = sol.iterations
         else:
             hh, ww = ref_l.depth.shape
             score_stride = max(1, int(np.ceil(np.sqrt(hh * ww / config.max_score_pixels))))
-            score_pts = reference_points(ref_l, cam, score_stride)
+            if config.score_selection == "gradient":
+                score_pts = select_points(ref_l, cam, score_stride)
+            else:
+                score_pts = reference_points(ref_l, cam, score_stride)
             rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
                               p=config.p, w=config.w, thresh_lum=config.thresh_lum,
                               thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
@@ -212,7 +227,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             it = jnp.int32(0)
             for _ in range(config.refine_rounds):
                 mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
-                sol = solve_pose(T, pts, cur_l, cam, mask.astype(jnp.float32), config.max_iterations)
+                sol = solve_pose(T, pts, cur_l, cam, mask.astype(jnp.float32), config.max_iterations,
+                                 depth_weight=dw)
                 T = sol.T
                 it = it + sol.iterations
             iters[level] = it

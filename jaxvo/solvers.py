@@ -153,22 +153,35 @@ def huber_weights(r, valid, k, sigma):
 
 
 def irls(T0, ref: RefPoints, cur: Level, camera: Camera, base_weights, huber_k, outer: int,
-         inner: int) -> Solution:
+         inner: int, depth_weight=None) -> Solution:
     """Huber M-estimation by iteratively re-weighted least squares.
 
     Each of ``outer`` rounds recomputes the residuals at the current pose,
-    re-estimates the scale with :func:`robust_scale` (MAD) and the Huber
+    re-estimates the scale with :func:`robust_scale` (MAD, separately for the
+    photometric and, with ``depth_weight``, the depth term) and the Huber
     weights, then runs ``inner`` LM iterations with those weights fixed.
     ``base_weights`` (N,) multiply the Huber weights (e.g. a consensus mask).
     """
     def round_(carry, _):
         T, iters = carry
-        res = residuals(T, ref, cur, camera)
-        sigma = robust_scale(res.r_int, res.valid_int & (base_weights > 0))
-        w = base_weights * huber_weights(res.r_int, res.valid_int, huber_k, sigma)
-        sol = solve_pose(T, ref, cur, camera, w, inner)
+        r, valid = _residual_columns(T, ref, cur, camera, depth_weight)
+        valid = valid & (base_weights[:, None] > 0)
+        sigma = jax.vmap(robust_scale, in_axes=(1, 1))(r, valid)
+        w = base_weights[:, None] * huber_weights(r, valid, huber_k, sigma[None, :])
+        if depth_weight is None:
+            w = w[:, 0]
+        sol = solve_pose(T, ref, cur, camera, w, inner, depth_weight=depth_weight)
         return (sol.T, iters + sol.iterations), sol
 
     (T, iters), sols = jax.lax.scan(round_, (T0, jnp.int32(0)), None, length=outer)
     last = jax.tree_util.tree_map(lambda x: x[-1], sols)
     return Solution(T, iters, last.hessian, last.cost)
+
+
+def _residual_columns(T, ref, cur, camera, depth_weight):
+    """Residuals (N, K) and validity (N, K) of the cost :func:`solve_pose` minimises (K = 1 or 2)."""
+    if depth_weight is None:
+        res = residuals(T, ref, cur, camera)
+        return res.r_int[:, None], res.valid_int[:, None]
+    r, _, valid = rgbd_terms(T, ref, cur, camera, depth_weight)
+    return r, valid
