@@ -180,16 +180,30 @@ def warp_jacobian(Pc, camera: Camera):
     return jnp.stack([ju, jv], 1)
 
 
+# A warped point is hidden in the current frame when the current depth at its
+# pixel is nearer than the point by more than this fraction of its depth.
+OCCLUSION_MARGIN = 0.05
+
+
+def _visible(Pc, u, v, cur: Level):
+    """(N,) bool: not occluded in the current frame (unknown current depth counts as visible)."""
+    d = sample_nearest(cur.depth, u, v)
+    return ~((d > 0) & (d < Pc[:, 2] * (1.0 - OCCLUSION_MARGIN)))
+
+
 def photometric_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera):
     """Photometric residual r (N,), Jacobian J (N, 6) (left perturbation) and validity (N,) in one pass.
 
     J = [dI/du, dI/dv](p') @ d(u', v')/d delta, with the current image's
     gradient images sampled bilinearly at the warped pixel (the classic
-    Lucas-Kanade forward-additive Jacobian). Invalid rows are zero.
+    Lucas-Kanade forward-additive Jacobian). Invalid rows are zero: no reference
+    depth, behind the camera, outside the image, or occluded in the current frame
+    (its depth there is nearer by more than ``OCCLUSION_MARGIN``): such a point is
+    not visible, so its intensity says nothing about the pose.
     """
     h, w = cur.intensity.shape
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
-    valid = ref.valid & in_front & _inside(u, v, h, w)
+    valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
     s = sample_bilinear(cur.igrad, u, v)
     r = jnp.where(valid, s[:, 0] - ref.intensity, 0.0)
     Jw = warp_jacobian(Pc, camera)
@@ -211,7 +225,7 @@ def rgbd_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera, depth_weig
     """
     h, w = cur.intensity.shape
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
-    valid = ref.valid & in_front & _inside(u, v, h, w)
+    valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
     s = sample_bilinear(jnp.concatenate([cur.igrad, cur.dgrad], -1), u, v)
     Jw = warp_jacobian(Pc, camera)
     r_i = jnp.where(valid, s[:, 0] - ref.intensity, 0.0)
