@@ -1,6 +1,34 @@
-"""jaxvo: robust dense RGB-D visual odometry in JAX."""
-from jaxvo.camera import Camera, camera_for_sequence
-from jaxvo import geometry
+"""jaxvo: robust dense RGB-D visual odometry in JAX.
 
-__all__ = ["Camera", "camera_for_sequence", "geometry"]
+The library in ten lines::
+
+    import jax, jaxvo
+    seq = jaxvo.TumSequence("rgbd_dataset_freiburg2_desk")           # lazy frames
+    cfg = jaxvo.Config(method="ransac")                              # or "classic", "huber"
+    ref, cur = seq.frame(0), seq.frame(1)
+    est = jaxvo.estimate_motion(ref, cur, seq.camera, cfg, jax.random.key(0))
+    est.T_cur_ref      # (4, 4): reference-camera points -> current camera
+    est.inlier_mask    # (480, 640) bool, False on moving / unexplained pixels
+    traj = jaxvo.track((f for _, f in seq), seq.camera, cfg, jax.random.key(0))
+    traj.poses         # (N, 4, 4) float64 T_world_cam, first frame = identity
+
+Conventions: twist xi = (w, v) (rotation first); ``T_cur_ref`` maps points of
+the reference (earlier) camera into the current one; trajectories are
+``T_world_cam`` (camera-to-world, as in TUM files); intensity 0-255, depth in
+metres (0 = invalid); pixels u = column, v = row, centres at integers.
+"""
+from jaxvo import geometry
+from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
+from jaxvo.frame import Frame, make_frame
+from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, estimate_motion, track
+from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
+from jaxvo.metrics import ate, mask_scores, rpe
+
+__all__ = [
+    "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
+    "Frame", "make_frame", "METHODS", "Config", "MotionEstimate", "Track", "estimate_motion", "track",
+    "DatasetError", "TumSequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
+    "rpe", "ate", "mask_scores",
+]
 __version__ = "0.1.0"
