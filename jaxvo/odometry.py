@@ -98,9 +98,9 @@ class Config:
     batch_size: int = 8
     num_levels: Optional[int] = None
     finest_level: int = 0
-    max_iterations: int = 10
+    max_iterations: int = 6
     hypothesis_iterations: int = 6
-    irls_rounds: int = 3
+    irls_rounds: int = 2
     refine_rounds: int = 1
     blocks: Tuple[int, ...] = (4, 2, 1, 1)
     max_score_pixels: int = 20000
