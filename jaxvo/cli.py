@@ -918,5 +918,100 @@ def _clean(x):
     return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
 
 
+# ----------------------------------------------------------------------------- map
+
+@main.command("map", help=f"""Build a coloured 3-D point-cloud map (PLY) of a sequence from a trajectory.
+
+SEQUENCE_DIR is a TUM-layout folder; TRAJ a TUM trajectory file (T_world_cam per line, e.g.
+written by 'jaxvo run', or the sequence's groundtruth.txt) whose timestamps are matched to the
+frames within --max-dt seconds (frames without a pose are skipped). Every N-th matched frame
+(--every), the pixels with valid depth up to --max-depth metres are back-projected and moved
+into the world with the trajectory's pose. Static points keep their RGB colour; moving points
+(outliers of the estimator on the pair (frame, next frame): residuals defined but not an
+inlier; or, with --use-masks, the pixels of the sequence's masks/) are painted green, as the
+outliers of the paper's Fig. 4/7. A voxel grid (--voxel metres; 0 = off) averages position and
+colour per voxel, static and moving points apart.
+
+OUT.ply is a binary little-endian PLY (float x y z, uchar red green blue) that Open3D, MeshLab
+and CloudCompare open. --preview writes a PNG rendering of it (perspective + top view).
+
+{CONVENTIONS}
+""")
+@click.argument("sequence_dir", type=click.Path(path_type=Path))
+@click.argument("traj", type=click.Path(path_type=Path))
+@click.argument("out_ply", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--every", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Use every N-th frame that has a pose.")
+@click.option("--voxel", type=click.FloatRange(min=0), default=0.01, show_default=True,
+              help="Voxel size in metres for downsampling (0 = keep every point).")
+@click.option("--method", type=click.Choice(["classic", "huber", "ransac"]), default="ransac", show_default=True,
+              help="Estimator whose outlier mask labels the moving points.")
+@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Use at most N frames of the sequence.")
+@click.option("--max-depth", type=click.FloatRange(min=0, min_open=True), default=4.0, show_default=True,
+              help="Ignore depth beyond this (metres).")
+@click.option("--preview", "preview", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Also write a PNG preview of the map.")
+@click.option("--use-masks", is_flag=True,
+              help="Label moving points from the sequence's masks/ (masks.txt) instead of running the estimator.")
+@click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
+@click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
+              help="Intrinsics preset. [default: as for 'jaxvo run': info.json, else from the folder name]")
+@click.option("--max-dt", type=float, default=0.02, show_default=True,
+              help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@_handle_errors
+def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
+            no_labels, seed, camera_preset, max_dt, no_progress):
+    from jaxvo.mapping import build_map, render_preview, write_ply
+    from jaxvo.odometry import Config
+    from jaxvo.trajectory import read_tum_trajectory
+
+    if use_masks and no_labels:
+        raise _Fail("--use-masks and --no-labels exclude each other")
+    if not Path(sequence_dir).exists():
+        raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
+    if not Path(traj).is_file():
+        raise DatasetError(f"{traj}: trajectory file not found")
+    cam = resolve_camera(sequence_dir, camera_preset)
+    seq = TumSequence(sequence_dir, camera=cam, max_dt=max_dt, max_frames=max_frames)
+    t_traj, T_traj = read_tum_trajectory(traj)
+    if len(t_traj) == 0:
+        raise DatasetError(f"{traj}: no poses in the trajectory file")
+    labels = None if no_labels else ("masks" if use_masks else "estimate")
+    config = Config(method=method)
+    click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames, every {every}, labels "
+               f"{labels if labels != 'estimate' else method}, {seq.camera!r}", err=True)
+    pbar = None if no_progress else _tqdm(total=0, unit="frame", desc="map")
+
+    def prog(done, total):
+        if pbar is not None:
+            pbar.total = total
+            pbar.update(done - pbar.n)
+    try:
+        res = build_map(seq, t_traj, T_traj, every=every, voxel=voxel, max_depth=max_depth, labels=labels,
+                        config=config, seed=seed, max_dt=max_dt, progress=prog)
+    finally:
+        if pbar is not None:
+            pbar.close()
+    cloud = res.cloud
+    if len(cloud) == 0:
+        raise DatasetError(f"{sequence_dir}: no pixel with valid depth <= {max_depth} m in the frames used")
+    write_ply(out_ply, cloud.points, cloud.display_colors())
+    lines = [f"frames        {len(res.frames)} used (every {every} of {len(seq)}; frames with a pose within "
+             f"{max_dt} s)",
+             f"points        {len(cloud)} after a {voxel:g} m voxel grid ({res.raw_points} back-projected), "
+             f"{int(cloud.moving.sum())} moving ({100 * float(cloud.moving.mean()):.1f} %)",
+             f"map           {out_ply} (binary PLY, static points in RGB, moving points green)"]
+    if labels == "estimate":
+        lines.insert(1, f"inlier ratio  {_fmt(float(np.nanmean(res.inlier_ratio)), 3)} (mean, {method})")
+    if preview is not None:
+        render_preview(cloud.points, cloud.display_colors(), preview, poses=res.poses,
+                       title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else ""))
+        lines.append(f"preview       {preview}")
+    lines.append(f"time          {res.seconds:.1f} s")
+    click.echo("\n".join(lines))
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -100,3 +100,19 @@ def test_sweep_quick(tmp_path, cache):
         assert r["cells"] == 2 * 2 + 2 and len(r["scores"]) == r["cells"]
         assert r["max_abs_diff"] < 1e-3  # the vmapped grid equals separate calls
         assert all(s["rpef_t"] is not None for s in r["scores"])
+
+
+def test_paper_sequences_quick(tmp_path):
+    out = tmp_path / "paper_sequences.md"
+    _script("paper_sequences").main(["--quick", "--size", "160x120", "--methods", "classic", "--sequences", "seq1",
+                                     "--cache", str(tmp_path / "cache"), "--out", str(out)])
+    text = out.read_text()
+    assert "python experiments/paper_sequences.py" in text and "20 cm and 30 degrees" in text
+    assert "| seq1 |" in text and "![seq1 translational_error]" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    (row,) = data["rows"]
+    assert row["method"] == "classic" and row["frames"] == 4 and row["ate"] is not None
+    assert 0 <= row["rpef_t"] < 0.05 and row["fps"] > 0 and 0 < row["inlier_ratio"] <= 1
+    assert row["mask_precision"] is None or 0 <= row["mask_precision"] <= 1
+    for f in data["figures"]["seq1"].values():
+        assert Path(f).stat().st_size > 1000

@@ -1,0 +1,531 @@
+"""Coloured 3-D maps of a sequence (the paper's Fig. 1/2): point clouds, PLY files, previews.
+
+A map is built from a sequence and a trajectory (``T_world_cam`` per frame, e.g. the TUM file
+``jaxvo run`` writes): every ``every``-th frame, the pixels with valid depth (``0 < z <= max_depth``
+metres) are back-projected into the camera frame (x right, y down, z forward) and moved into
+the world with ``T_world_cam``. Each point is labelled *static* (an inlier of the estimator)
+or *moving* (an outlier): static points keep their RGB colour, moving points are painted
+:data:`MOVING_COLOUR` (green, as the outliers of the paper's Fig. 4/7).
+
+Labels come from :func:`jaxvo.odometry.estimate_motion` on the pair (frame i, frame i+1) (for
+the last frame, (i, i-1)): the estimator's inlier mask lives on the *reference* frame's pixels,
+and ``valid_mask & ~inlier_mask`` are the outliers. Or, with ``labels="masks"``, from the
+sequence's ``masks/`` folder (8-bit PNGs, 255 = moving pixel, listed by timestamp in
+``masks.txt``; jaxvo synthetic and augmented sequences have them). ``labels=None``: all static.
+
+Voxel-grid downsampling (:func:`voxel_downsample`) averages positions and colours per voxel,
+static and moving points apart. :func:`write_ply` writes a binary little-endian PLY
+(float x, y, z; uchar red, green, blue) that Open3D, MeshLab and CloudCompare open;
+:func:`read_ply` reads it (and ASCII PLY) back. :func:`render_preview` splats the cloud into a
+PNG (a perspective view from behind and above the first camera, and a top view) with NumPy.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Callable, Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["MOVING_COLOUR", "PointCloud", "MapResult", "match_trajectory", "backproject_frame",
+           "outlier_mask", "read_moving_masks", "load_mask", "voxel_downsample", "build_map", "write_ply",
+           "read_ply", "render_preview", "preview_image"]
+
+#: Colour of moving (outlier) points, RGB 0-255: the paper's outlier green (``jaxvo.viz.OUTLIER_COLOUR``).
+MOVING_COLOUR = (40, 220, 40)
+
+
+@dataclasses.dataclass
+class PointCloud:
+    """points (N, 3) float32 world metres, colors (N, 3) uint8 RGB, moving (N,) bool."""
+    points: np.ndarray
+    colors: np.ndarray
+    moving: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @staticmethod
+    def empty() -> "PointCloud":
+        return PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, bool))
+
+    @staticmethod
+    def concat(clouds: Sequence["PointCloud"]) -> "PointCloud":
+        clouds = [c for c in clouds if len(c)]
+        if not clouds:
+            return PointCloud.empty()
+        return PointCloud(np.concatenate([c.points for c in clouds]).astype(np.float32),
+                          np.concatenate([c.colors for c in clouds]).astype(np.uint8),
+                          np.concatenate([c.moving for c in clouds]).astype(bool))
+
+    def display_colors(self, moving_colour=MOVING_COLOUR) -> np.ndarray:
+        """(N, 3) uint8: RGB colour for static points, ``moving_colour`` for moving ones."""
+        c = self.colors.copy()
+        c[self.moving] = np.asarray(moving_colour, np.uint8)
+        return c
+
+
+@dataclasses.dataclass
+class MapResult:
+    """What :func:`build_map` made.
+
+    cloud: the (downsampled) :class:`PointCloud` (true RGB colours + ``moving`` flags; use
+    ``cloud.display_colors()`` for the map's colours). frames: sequence indices used.
+    poses: (F, 4, 4) their T_world_cam. raw_points: points before downsampling.
+    moving_fraction: per used frame, fraction of its valid-depth pixels labelled moving.
+    inlier_ratio: per used frame, the estimator's inlier ratio (NaN when labels are not estimated).
+    seconds: wall time.
+    """
+    cloud: PointCloud
+    frames: np.ndarray
+    poses: np.ndarray
+    raw_points: int
+    moving_fraction: np.ndarray
+    inlier_ratio: np.ndarray
+    seconds: float
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def match_trajectory(frame_stamps, traj_stamps, traj_poses, max_dt: float = 0.02) -> Tuple[np.ndarray, np.ndarray]:
+    """Poses for the frames: ``(frame indices (M,), T_world_cam (M, 4, 4))`` of the frames whose
+    timestamp has a trajectory entry within ``max_dt`` seconds (one-to-one, nearest first)."""
+    from jaxvo.datasets import associate
+
+    P = np.asarray(traj_poses, np.float64)
+    ia, ib = associate(frame_stamps, traj_stamps, max_dt)
+    order = np.argsort(ia, kind="stable")
+    return ia[order], P[ib[order]]
+
+
+def backproject_frame(rgb, depth, camera, T_world_cam, max_depth: float = 4.0, stride: int = 1):
+    """Back-project one RGB-D image into the world.
+
+    rgb: (H, W, 3) uint8 RGB. depth: (H, W) metres (0 = invalid). camera: jaxvo Camera for
+    (H, W). T_world_cam: (4, 4) camera-to-world. stride: use every stride-th row and column.
+    Returns ``(points (N, 3) float64 world, colors (N, 3) uint8, (rows, cols) (N,) pixel
+    indices)`` of the pixels with ``0 < depth <= max_depth``.
+    """
+    d = np.asarray(depth, np.float64)
+    H, W = d.shape
+    rows, cols = np.mgrid[0:H:stride, 0:W:stride]
+    z = d[rows, cols]
+    ok = np.isfinite(z) & (z > 0) & (z <= max_depth)
+    r, c, z = rows[ok], cols[ok], z[ok]
+    x = (c - float(camera.cx)) / float(camera.fx) * z
+    y = (r - float(camera.cy)) / float(camera.fy) * z
+    Pc = np.stack([x, y, z], 1)
+    T = np.asarray(T_world_cam, np.float64)
+    Pw = Pc @ T[:3, :3].T + T[:3, 3]
+    return Pw, np.asarray(rgb)[r, c].astype(np.uint8), (r, c)
+
+
+def outlier_mask(est, width: int, height: int) -> np.ndarray:
+    """(H, W) bool outlier mask ``valid_mask & ~inlier_mask`` of a MotionEstimate, resized (nearest)
+    to full size when the estimate stopped at a coarser level."""
+    inl = np.asarray(est.inlier_mask, bool)
+    val = np.asarray(est.valid_mask, bool)
+    out = val & ~inl
+    if out.shape != (height, width):
+        import cv2
+        out = cv2.resize(out.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return out
+
+
+def read_moving_masks(seq_dir) -> Optional[Tuple[np.ndarray, list]]:
+    """``(stamps, paths)`` of a sequence's moving-pixel masks (``masks.txt``, else ``masks/*.png``
+    named by timestamp), or None when the sequence has none."""
+    from jaxvo.datasets import read_file_list
+
+    seq_dir = Path(seq_dir)
+    if (seq_dir / "masks.txt").is_file():
+        t, names = read_file_list(seq_dir / "masks.txt")
+        return t, [seq_dir / n for n in names]
+    if (seq_dir / "masks").is_dir():
+        items = []
+        for p in (seq_dir / "masks").glob("*.png"):
+            try:
+                items.append((float(p.stem), p))
+            except ValueError:
+                continue
+        if items:
+            items.sort()
+            return np.asarray([t for t, _ in items]), [p for _, p in items]
+    return None
+
+
+def load_mask(p, shape) -> np.ndarray:
+    """(H, W) bool moving-pixel mask from an 8-bit PNG (value > 127 = moving); DatasetError naming the
+    file if it does not decode or its size is not ``shape`` (H, W)."""
+    import cv2
+
+    from jaxvo.datasets import DatasetError
+    p = Path(p)
+    m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if m is None:
+        raise DatasetError(f"{p}: mask image does not decode (missing, corrupt or not an image file)")
+    if m.ndim == 3:
+        m = m[..., 0]
+    if m.shape != tuple(shape):
+        raise DatasetError(f"{p}: mask size {m.shape[1]}x{m.shape[0]} does not match the images' "
+                           f"{shape[1]}x{shape[0]}")
+    return m > 127
+
+
+def voxel_downsample(points, colors, voxel: float, moving=None):
+    """Average positions and colours per voxel of side ``voxel`` metres (static and moving apart).
+
+    Returns ``(points (M, 3) float32, colors (M, 3) uint8, moving (M,) bool)``; ``voxel <= 0``
+    or None returns the input unchanged (as those dtypes).
+    """
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    C = np.asarray(colors).reshape(-1, 3)
+    mv = np.zeros(len(P), bool) if moving is None else np.asarray(moving, bool).reshape(-1)
+    if not voxel or voxel <= 0 or len(P) == 0:
+        return P.astype(np.float32), C.astype(np.uint8), mv
+    q = np.floor((P - P.min(0)) / float(voxel)).astype(np.int64)
+    keys = np.concatenate([q, mv[:, None].astype(np.int64)], 1)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    M = counts.size
+    outP = np.stack([np.bincount(inv, P[:, k], M) for k in range(3)], 1) / counts[:, None]
+    outC = np.stack([np.bincount(inv, C[:, k].astype(np.float64), M) for k in range(3)], 1) / counts[:, None]
+    outM = np.zeros(M, bool)
+    outM[inv] = mv
+    return outP.astype(np.float32), np.clip(np.round(outC), 0, 255).astype(np.uint8), outM
+
+
+# ----------------------------------------------------------------------------- the map
+
+def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[float] = 0.01,
+              max_depth: float = 4.0, labels: Optional[str] = "estimate", config=None, seed: int = 0,
+              stride: int = 1, max_dt: float = 0.02,
+              progress: Optional[Callable[[int, int], None]] = None) -> MapResult:
+    """Coloured point cloud of a :class:`jaxvo.datasets.TumSequence` from a trajectory.
+
+    Args:
+      seq: the sequence (its camera must match the images).
+      traj_stamps, traj_poses: (M,) seconds and (M, 4, 4) T_world_cam (e.g.
+        :func:`jaxvo.trajectory.read_tum_trajectory`); matched to the frames by timestamp
+        within ``max_dt`` s. Frames without a pose are skipped.
+      every: use every ``every``-th frame that has a pose.
+      voxel: voxel size (m) for downsampling, None / 0 = keep every point.
+      labels: "estimate" (outliers of ``estimate_motion`` on (i, i+1) with ``config``,
+        default ``Config()`` = ransac; key ``fold_in(key(seed), i)``), "masks" (the
+        sequence's masks/), or None (everything static).
+      stride: pixel subsampling of each frame before the voxel grid.
+      progress: ``progress(done, total)`` after each used frame.
+
+    Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
+    """
+    from jaxvo.datasets import DatasetError
+    from jaxvo.frame import make_frame
+
+    t0 = time.perf_counter()
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
+    if labels not in (None, "estimate", "masks"):
+        raise ValueError(f"labels must be 'estimate', 'masks' or None, got {labels!r}")
+    idx, poses = match_trajectory(seq.timestamps, traj_stamps, traj_poses, max_dt)
+    if idx.size == 0:
+        raise DatasetError(f"no trajectory pose within {max_dt} s of any frame of {seq.path} "
+                           f"(frames {seq.timestamps[0]:.6f} .. {seq.timestamps[-1]:.6f})")
+    sel = np.arange(0, idx.size, every)
+    idx, poses = idx[sel], poses[sel]
+    cam = seq.camera
+    W, H = cam.width, cam.height
+    masks = None
+    if labels == "masks":
+        masks = read_moving_masks(seq.path)
+        if masks is None:
+            raise DatasetError(f"{seq.path}: no masks.txt or masks/ folder (needed for mask labels)")
+    if labels == "estimate":
+        import jax
+
+        from jaxvo.odometry import Config, estimate_motion
+        config = Config() if config is None else config
+        key = jax.random.key(int(seed))
+
+    cache: Dict[int, tuple] = {}
+
+    def load(i):
+        if i not in cache:
+            bgr, dep = seq.read_images(i)
+            if (dep.shape[1], dep.shape[0]) != (W, H):
+                raise DatasetError(f"{seq.rgb_paths[i]}: image size {dep.shape[1]}x{dep.shape[0]} does not "
+                                   f"match the camera's {W}x{H}")
+            rgb = np.ascontiguousarray(bgr[..., ::-1])
+            try:
+                fr = make_frame(bgr, dep, seq.depth_scale, color_order="bgr", source=str(seq.depth_paths[i]))
+            except ValueError as e:
+                raise DatasetError(str(e)) from None
+            cache.clear() if len(cache) > 4 else None
+            cache[i] = (rgb, dep.astype(np.float64) / seq.depth_scale, fr)
+        return cache[i]
+
+    clouds, mfrac, ratios = [], [], []
+    n = len(idx)
+    for k, (i, T) in enumerate(zip(idx, poses)):
+        i = int(i)
+        rgb, depth, fr = load(i)
+        ratio = float("nan")
+        if labels == "estimate" and len(seq) > 1:
+            j = i + 1 if i + 1 < len(seq) else i - 1
+            other = load(j)[2]
+            est = estimate_motion(fr, other, cam, config, jax.random.fold_in(key, i))
+            moving_img = outlier_mask(est, W, H)
+            ratio = float(est.inlier_ratio)
+        elif labels == "masks":
+            mt, mp = masks
+            j = int(np.argmin(np.abs(mt - seq.timestamps[i])))
+            if abs(mt[j] - seq.timestamps[i]) > max_dt:
+                raise DatasetError(f"{seq.path}: no moving-pixel mask within {max_dt} s of frame "
+                                   f"{seq.timestamps[i]:.6f}")
+            moving_img = load_mask(mp[j], (H, W))
+        else:
+            moving_img = np.zeros((H, W), bool)
+        P, C, (r, c) = backproject_frame(rgb, depth, cam, T, max_depth, stride)
+        mv = moving_img[r, c]
+        clouds.append(PointCloud(P.astype(np.float32), C, mv))
+        mfrac.append(float(mv.mean()) if mv.size else float("nan"))
+        ratios.append(ratio)
+        if progress is not None:
+            progress(k + 1, n)
+    raw = PointCloud.concat(clouds)
+    if voxel:
+        p, c, m = voxel_downsample(raw.points, raw.colors, voxel, raw.moving)
+        cloud = PointCloud(p, c, m)
+    else:
+        cloud = raw
+    return MapResult(cloud, idx, poses, len(raw), np.asarray(mfrac), np.asarray(ratios),
+                     time.perf_counter() - t0)
+
+
+# ----------------------------------------------------------------------------- PLY
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def write_ply(path, points, colors=None) -> Path:
+    """Write a binary little-endian PLY point cloud: float x, y, z and (if given) uchar red, green, blue.
+
+    points: (N, 3) float metres. colors: (N, 3) uint8 RGB (floats in [0, 1] are scaled by 255).
+    Opens in Open3D (``o3d.io.read_point_cloud``), MeshLab and CloudCompare. Returns the Path.
+    """
+    path = Path(path)
+    P = np.asarray(points, np.float32).reshape(-1, 3)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    C = None
+    if colors is not None:
+        C = np.asarray(colors)
+        if C.shape != P.shape:
+            raise ValueError(f"colors must be (N, 3) like points {P.shape}, got {C.shape}")
+        if np.issubdtype(C.dtype, np.floating):
+            C = np.clip(np.round(C * 255.0), 0, 255)
+        C = C.astype(np.uint8)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.empty(len(P), dtype=fields)
+    rec["x"], rec["y"], rec["z"] = P[:, 0], P[:, 1], P[:, 2]
+    if C is not None:
+        rec["red"], rec["green"], rec["blue"] = C[:, 0], C[:, 1], C[:, 2]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by jaxvo.mapping",
+              f"element vertex {len(P)}", "property float x", "property float y", "property float z"]
+    if C is not None:
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
+    header += ["end_header"]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(rec.tobytes())
+    return path
+
+
+def read_ply(path) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """Read the vertices of a PLY file (binary little/big endian or ASCII; scalar vertex properties).
+
+    Returns ``(points (N, 3) float64, colors (N, 3) uint8 or None)``. Other elements after the
+    vertices (faces) are ignored. Raises ValueError naming the file for malformed input.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise ValueError(f"{path}: not a PLY file")
+    nl = data.find(b"\n", end)
+    header = data[:end].decode("ascii", "replace").splitlines()
+    body = data[nl + 1:]
+    fmt, elements, cur = None, [], None
+    for ln in header:
+        t = ln.split()
+        if not t:
+            continue
+        if t[0] == "format":
+            fmt = t[1]
+        elif t[0] == "element":
+            cur = [t[1], int(t[2]), []]
+            elements.append(cur)
+        elif t[0] == "property" and cur is not None:
+            if t[1] == "list":
+                cur[2].append((t[-1], None))
+            else:
+                if t[1] not in _PLY_TYPES:
+                    raise ValueError(f"{path}: unknown PLY property type {t[1]!r}")
+                cur[2].append((t[2], _PLY_TYPES[t[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
+    if not elements or elements[0][0] != "vertex":
+        raise ValueError(f"{path}: the first PLY element is not 'vertex'")
+    _, n, props = elements[0]
+    if any(t is None for _, t in props):
+        raise ValueError(f"{path}: list properties on vertices are not supported")
+    if fmt == "ascii":
+        rows = body.decode("ascii").split("\n")[:n]
+        arr = np.loadtxt(rows, ndmin=2) if n else np.zeros((0, len(props)))
+        rec = {name: arr[:, k] for k, (name, _) in enumerate(props)}
+    else:
+        e = "<" if fmt == "binary_little_endian" else ">"
+        dt = np.dtype([(name, e + t) for name, t in props])
+        if len(body) < n * dt.itemsize:
+            raise ValueError(f"{path}: file is truncated ({len(body)} bytes of vertex data, "
+                             f"expected {n * dt.itemsize})")
+        rec = np.frombuffer(body, dtype=dt, count=n)
+    names = [p for p, _ in props]
+    for c in "xyz":
+        if c not in names:
+            raise ValueError(f"{path}: vertex property {c!r} missing")
+    P = np.stack([np.asarray(rec[c], np.float64) for c in "xyz"], 1)
+    C = None
+    if all(c in names for c in ("red", "green", "blue")):
+        C = np.stack([np.asarray(rec[c]) for c in ("red", "green", "blue")], 1)
+        if np.issubdtype(C.dtype, np.floating) and C.max(initial=0) <= 1.0:
+            C = C * 255.0
+        C = np.clip(np.round(C), 0, 255).astype(np.uint8)
+    return P, C
+
+
+# ----------------------------------------------------------------------------- preview
+
+def _splat(Pc, colors, fx, fy, cx, cy, W, H, radius=1, background=255):
+    """Z-buffered point splat of camera-frame points (z forward) into an (H, W, 3) uint8 image."""
+    img = np.full((H, W, 3), background, np.uint8)
+    z = Pc[:, 2]
+    ok = z > 0.05
+    Pc, colors, z = Pc[ok], colors[ok], z[ok]
+    u = np.round(fx * Pc[:, 0] / z + cx).astype(np.int64)
+    v = np.round(fy * Pc[:, 1] / z + cy).astype(np.int64)
+    order = np.argsort(-z, kind="stable")   # far first, near last (last write wins)
+    u, v, col = u[order], v[order], colors[order]
+    for du in range(radius):
+        for dv in range(radius):
+            uu, vv = u + du, v + dv
+            m = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+            img[vv[m], uu[m]] = col[m]
+    return img
+
+
+def _look_at(eye, target, up) -> np.ndarray:
+    """T_world_view of a camera (x right, y down, z forward) at ``eye`` looking at ``target``."""
+    z = target - eye
+    z = z / max(np.linalg.norm(z), 1e-9)
+    x = np.cross(z, -up)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross(z, np.array([1.0, 0.0, 0.0]))
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], 1)
+    T[:3, 3] = eye
+    return T
+
+
+def preview_image(points, colors, poses=None, size: Tuple[int, int] = (640, 480), view: str = "perspective",
+                  max_points: int = 2_000_000, seed: int = 0) -> np.ndarray:
+    """(H, W, 3) uint8 RGB splat of a coloured cloud.
+
+    view "perspective": from behind and above the first camera of ``poses`` ((F, 4, 4)
+    T_world_cam; without poses the world frame is taken as a y-down camera frame), looking at
+    the cloud's median point. view "top": orthographic, looking down the cameras' mean up axis
+    (world -y without poses).
+    """
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    C = np.asarray(colors, np.uint8).reshape(-1, 3)
+    W, H = size
+    if len(P) > max_points:
+        keep = np.random.default_rng(seed).choice(len(P), max_points, replace=False)
+        P, C = P[keep], C[keep]
+    if len(P) == 0:
+        return np.full((H, W, 3), 255, np.uint8)
+    if poses is not None and len(poses):
+        Tp = np.asarray(poses, np.float64)
+        up = -Tp[:, :3, 1].mean(0)
+        fwd = Tp[0, :3, 2]
+        origin = Tp[0, :3, 3]
+    else:
+        up, fwd, origin = np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    up = up / max(np.linalg.norm(up), 1e-9)
+    target = np.median(P, 0)
+    lo, hi = np.percentile(P, 2, 0), np.percentile(P, 98, 0)
+    ext = float(np.linalg.norm(hi - lo))
+    if view == "top":
+        # orthographic along -up: image x along the forward direction's horizontal part's normal
+        f = fwd - up * np.dot(fwd, up)
+        f = f / max(np.linalg.norm(f), 1e-9)
+        r = np.cross(f, -up)   # right = forward x down
+        a = (P - target) @ r
+        b = -(P - target) @ f   # forward = up in the image
+        h = P @ up
+        if poses is not None and len(poses):   # leave out the ceiling (> 0.5 m above the highest camera)
+            below = h <= float(np.max(np.asarray(poses)[:, :3, 3] @ up)) + 0.5
+            if below.any():
+                a, b, h, C = a[below], b[below], h[below], C[below]
+        s = 0.9 * min(W, H) / max(np.percentile(np.abs(np.r_[a, b]), 99) * 2, 1e-6)
+        return _splat_ortho(a * s + W / 2, b * s + H / 2, -h, C, W, H)
+    eye = origin - fwd * 0.6 * ext + up * 0.35 * ext
+    T = _look_at(eye, target, up)
+    Pc = (P - T[:3, 3]) @ T[:3, :3]
+    f = 0.9 * W
+    return _splat(Pc, C, f, f, W / 2 - 0.5, H / 2 - 0.5, W, H, radius=1 if len(P) > 200_000 else 2)
+
+
+def _splat_ortho(u, v, depth, colors, W, H, radius=2):
+    img = np.full((H, W, 3), 255, np.uint8)
+    ui, vi = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
+    order = np.argsort(-depth, kind="stable")
+    ui, vi, col = ui[order], vi[order], colors[order]
+    for du in range(radius):
+        for dv in range(radius):
+            uu, vv = ui + du, vi + dv
+            m = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+            img[vv[m], uu[m]] = col[m]
+    return img
+
+
+def render_preview(points, colors, path_png, poses=None, size: Tuple[int, int] = (640, 480),
+                   title: str = "") -> Path:
+    """Write a PNG preview of a coloured cloud: a perspective view and a top view side by side
+    (see :func:`preview_image`), rendered with NumPy and laid out with matplotlib (Agg)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    persp = preview_image(points, colors, poses, size, "perspective")
+    top = preview_image(points, colors, poses, (size[1], size[1]), "top")
+    W, H = size
+    fig, axs = plt.subplots(1, 2, figsize=((W + H) / 100 + 0.6, H / 100 + 0.7), dpi=100,
+                            gridspec_kw={"width_ratios": [W, H]})
+    for ax, img, t in ((axs[0], persp, "perspective (behind/above first camera)"), (axs[1], top, "top view")):
+        ax.imshow(img)
+        ax.set_title(t, fontsize=8)
+        ax.set_axis_off()
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    path = Path(path_png)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
