@@ -76,7 +76,7 @@ def _handle_errors(f):
 def load_config(path=None, **overrides):
     """A :class:`jaxvo.odometry.Config` from a JSON file of Config fields plus overrides (None = keep).
 
-    Lists become tuples (``strides``). Unknown fields, a malformed file or an invalid value raise
+    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value raise
     ValueError / DatasetError naming the file.
     """
     from jaxvo.odometry import Config
@@ -342,7 +342,7 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
               help="JSON object of jaxvo.odometry.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, "
-                   "\"thresh_lum\": 30, \"strides\": [2, 1, 1, 1]}); the options below override it.")
+                   "\"thresh_lum\": 30, \"blocks\": [4, 2, 1, 1]}); the options below override it.")
 @click.option("--thresh-lum", type=float, default=None,
               help="Inlier threshold on |luminance residual|, 0-255 units. [default: 30]")
 @click.option("--thresh-depth", type=float, default=None,

@@ -292,7 +292,8 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ref: reference (earlier) Frame: intensity (H, W) float32 0-255, depth (H, W) float32 metres, 0 = invalid.
       cur: current (later) Frame, same size.
       camera: intrinsics for (H, W) images.
-      config: :class:`Config` (default: RANSAC with the paper's settings).
+      config: :class:`Config` (default: RANSAC with jaxvo's defaults; ``Config.paper()`` is the
+        published algorithm).
       key: ``jax.random`` key (used by "ransac"); default ``jax.random.key(0)``. The
         same key gives a bitwise identical result.
       init: optional (4, 4) initial guess of T_cur_ref (default identity).
