@@ -411,20 +411,10 @@ def read_ply(path) -> Tuple[np.ndarray, Optional[np.ndarray]]:
 
 def _splat(Pc, colors, fx, fy, cx, cy, W, H, radius=1, background=255):
     """Z-buffered point splat of camera-frame points (z forward) into an (H, W, 3) uint8 image."""
-    img = np.full((H, W, 3), background, np.uint8)
     z = Pc[:, 2]
     ok = z > 0.05
     Pc, colors, z = Pc[ok], colors[ok], z[ok]
-    u = np.round(fx * Pc[:, 0] / z + cx).astype(np.int64)
-    v = np.round(fy * Pc[:, 1] / z + cy).astype(np.int64)
-    order = np.argsort(-z, kind="stable")   # far first, near last (last write wins)
-    u, v, col = u[order], v[order], colors[order]
-    for du in range(radius):
-        for dv in range(radius):
-            uu, vv = u + du, v + dv
-            m = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
-            img[vv[m], uu[m]] = col[m]
-    return img
+    return _splat_ortho(fx * Pc[:, 0] / z + cx, fy * Pc[:, 1] / z + cy, z, colors, W, H, radius, background)
 
 
 def _look_at(eye, target, up) -> np.ndarray:
@@ -491,8 +481,10 @@ def preview_image(points, colors, poses=None, size: Tuple[int, int] = (640, 480)
     return _splat(Pc, C, f, f, W / 2 - 0.5, H / 2 - 0.5, W, H, radius=1 if len(P) > 200_000 else 2)
 
 
-def _splat_ortho(u, v, depth, colors, W, H, radius=2):
-    img = np.full((H, W, 3), 255, np.uint8)
+def _splat_ortho(u, v, depth, colors, W, H, radius=2, background=255):
+    """Splat points at pixel coordinates (u, v) into an (H, W, 3) uint8 image, nearest (smallest
+    ``depth``) drawn last so it wins."""
+    img = np.full((H, W, 3), background, np.uint8)
     ui, vi = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
     order = np.argsort(-depth, kind="stable")
     ui, vi, col = ui[order], vi[order], colors[order]
