@@ -60,8 +60,9 @@ class Config:
     finest_level: *static*, stop after this level (0 = full resolution).
     max_iterations: *static*, LM iterations per level (classic, RANSAC refinement).
     hypothesis_iterations: *static*, LM iterations per RANSAC hypothesis.
-    irls_rounds: *static*, Huber re-weighting rounds per level (each runs
-      max_iterations // irls_rounds LM iterations, at least 1).
+    irls_rounds: *static*, Huber re-weighting rounds per level (huber, and the RANSAC
+      consensus refinement with consensus_weights="huber").
+    irls_iterations: *static*, LM iterations per re-weighting round.
     refine_rounds: *static*, RANSAC consensus -> refine rounds per level.
     blocks: *static*, per level (index 0 = finest): the refinement uses one reference
       pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
@@ -105,9 +106,10 @@ class Config:
     max_iterations: int = 6
     hypothesis_iterations: int = 6
     irls_rounds: int = 2
+    irls_iterations: int = 2
     refine_rounds: int = 1
     blocks: Tuple[int, ...] = (4, 2, 1, 1)
-    max_score_pixels: int = 20000
+    max_score_pixels: int = 10000
     depth_weight: Any = 600.0
     terms: str = "photometric"
     hypothesis_terms: str = "rgbd"
@@ -145,7 +147,7 @@ class Config:
         if self.scoring not in ("count", "msac"):
             raise ValueError(f"config.scoring must be 'count' or 'msac', got {self.scoring!r}")
         for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
-                     "irls_rounds", "refine_rounds", "max_score_pixels"):
+                     "irls_rounds", "irls_iterations", "refine_rounds", "max_score_pixels"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
         if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
@@ -155,7 +157,7 @@ class Config:
 
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
-           "max_iterations", "hypothesis_iterations", "irls_rounds", "refine_rounds", "blocks",
+           "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
            "max_score_pixels", "terms", "hypothesis_terms", "scoring", "score_selection", "consensus_weights",
            "prior_candidate"]
 jax.tree_util.register_dataclass(
@@ -228,7 +230,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
             iters[level] = sol.iterations
         elif config.method == "huber":
-            inner = max(1, config.max_iterations // config.irls_rounds)
+            inner = config.irls_iterations
             sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
             iters[level] = sol.iterations
         else:
@@ -254,7 +256,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             for _ in range(config.refine_rounds):
                 mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
                 if config.consensus_weights == "huber":
-                    inner = max(1, config.max_iterations // config.irls_rounds)
+                    inner = config.irls_iterations
                     sol = irls(T, pts, cur_l, cam, mask.astype(jnp.float32), config.huber_k, config.irls_rounds,
                                inner, depth_weight=dw)
                 else:
