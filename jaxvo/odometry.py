@@ -134,18 +134,10 @@ class Config:
     def validate(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
-        if self.terms not in ("photometric", "rgbd"):
-            raise ValueError(f"config.terms must be 'photometric' or 'rgbd', got {self.terms!r}")
-        if self.hypothesis_terms not in ("photometric", "rgbd"):
-            raise ValueError(f"config.hypothesis_terms must be 'photometric' or 'rgbd', got {self.hypothesis_terms!r}")
-        if self.prior_candidate not in ("raw", "refined"):
-            raise ValueError(f"config.prior_candidate must be 'raw' or 'refined', got {self.prior_candidate!r}")
-        if self.consensus_weights not in ("binary", "huber"):
-            raise ValueError(f"config.consensus_weights must be 'binary' or 'huber', got {self.consensus_weights!r}")
-        if self.score_selection not in ("grid", "gradient"):
-            raise ValueError(f"config.score_selection must be 'grid' or 'gradient', got {self.score_selection!r}")
-        if self.scoring not in ("count", "msac"):
-            raise ValueError(f"config.scoring must be 'count' or 'msac', got {self.scoring!r}")
+        for name, allowed in _CHOICES.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"config.{name} must be one of {', '.join(map(repr, allowed))}, "
+                                 f"got {getattr(self, name)!r}")
         for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
                      "irls_rounds", "irls_iterations", "refine_rounds", "max_score_pixels"):
             if int(getattr(self, name)) < 1:
@@ -155,6 +147,11 @@ class Config:
         if any(int(b) < 1 for b in self.blocks):
             raise ValueError(f"config.blocks must be >= 1, got {self.blocks}")
 
+
+# the string-valued static fields and their allowed values
+_CHOICES = {"terms": ("photometric", "rgbd"), "hypothesis_terms": ("photometric", "rgbd"),
+            "prior_candidate": ("raw", "refined"), "consensus_weights": ("binary", "huber"),
+            "score_selection": ("grid", "gradient"), "scoring": ("count", "msac")}
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
