@@ -300,6 +300,7 @@ def _tqdm(**kw):
   jaxvo eval SEQ traj.txt             # RPE / ATE against the sequence's ground truth
   jaxvo synth seq2 OUT                # write a synthetic sequence (TUM layout + masks/)
   jaxvo augment REAL_SEQ OUT          # add synthetic moving persons to a real sequence
+  jaxvo map SEQ traj.txt map.ply      # coloured 3-D point cloud (moving points green)
 
 {CONVENTIONS}
 """)
