@@ -284,8 +284,8 @@ def track_memory(frame_counts, method, cycle: int, key):
     for n in frame_counts:
         samples = []
 
-        def cb(i, est, pose):
-            if i % max(1, n // 20) == 0:
+        def cb(step):
+            if step.frame % max(1, n // 20) == 0:
                 samples.append(common.current_rss_mb())
         rss0 = common.current_rss_mb()
         t0 = time.perf_counter()

@@ -20,14 +20,15 @@ metres (0 = invalid); pixels u = column, v = row, centres at integers.
 from jaxvo import geometry
 from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
 from jaxvo.frame import Frame, make_frame
-from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, estimate_motion, track
+from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, TrackConfig, TrackStep, estimate_motion, track
 from jaxvo.datasets import DatasetError, TumSequence
 from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.metrics import ate, mask_scores, rpe
 
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
-    "Frame", "make_frame", "METHODS", "Config", "MotionEstimate", "Track", "estimate_motion", "track",
+    "Frame", "make_frame", "METHODS", "Config", "MotionEstimate", "Track", "TrackConfig", "TrackStep",
+    "estimate_motion", "track",
     "DatasetError", "TumSequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
     "rpe", "ate", "mask_scores",
 ]

@@ -73,6 +73,20 @@ def _handle_errors(f):
 
 # ----------------------------------------------------------------------------- helpers
 
+def track_policy(gap: int = 1, lag: Optional[int] = None):
+    """:class:`jaxvo.odometry.TrackConfig` from the CLI's --keyframe-gap / --keyframe-lag (lag
+    defaults to gap // 2); a bad combination raises ValueError naming the options."""
+    from jaxvo.odometry import TrackConfig
+
+    policy = TrackConfig(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
+    try:
+        policy.validate()
+    except ValueError:
+        raise ValueError(f"--keyframe-lag {policy.lag} must be smaller than --keyframe-gap {policy.max_gap}") \
+            from None
+    return policy
+
+
 def load_config(path=None, **overrides):
     """A :class:`jaxvo.odometry.Config` from a JSON file of Config fields plus overrides (None = keep).
 
@@ -183,12 +197,14 @@ class RunResult:
 
 
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
-                 on_pair: Optional[Callable] = None, pbar=None) -> RunResult:
-    """Track ``seq`` with :func:`jaxvo.odometry.track` (so results equal the library's), writing
-    the trajectory to ``out`` as it goes (first frame at identity) and optionally each pair's
-    outlier mask into ``save_masks`` (PNG named by the *reference* frame's timestamp: the mask
-    lives on the reference image's pixels). ``on_pair(i, est, T_world_cur)`` is called for
-    pair i (frames i, i+1); ``pbar`` (tqdm) is advanced once per pair. Ctrl-C ends the run early
+                 on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
+    """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
+    :class:`jaxvo.odometry.TrackConfig`; default frame to frame), so results equal the library's,
+    writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
+    estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
+    timestamp: the mask lives on the reference image's pixels; with keyframes the last
+    estimate against a reference, the longest baseline, is the one kept).
+    ``on_pair(step)`` is called with each :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the run early
     (``interrupted=True``) keeping everything written so far.
     """
     import cv2
@@ -213,19 +229,20 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
     times: List[float] = []
     t0 = time.perf_counter()
 
-    def callback(i, est, pose):
+    def callback(step):
+        i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
         ratios.append(float(est.inlier_ratio))
-        valids.append(bool(est.valid))
+        valids.append(bool(step.valid))
         poses.append(np.asarray(pose, np.float64))
         if writer is not None:
             writer.write(stamps[i + 1], pose)
         if mask_dir is not None:
             m = _outlier_mask(est, W, H)
-            p = mask_dir / f"{_stamp_name(stamps[i])}.png"
+            p = mask_dir / f"{_stamp_name(stamps[ref])}.png"
             if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
                 raise OSError(f"{p}: could not write mask image")
         if on_pair is not None:
-            on_pair(i, est, pose)
+            on_pair(step)
         times.append(time.perf_counter())
         if pbar is not None:
             pbar.update(1)
@@ -238,7 +255,7 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
         if writer is not None:
             writer.open()
             writer.write_first(stamps[0])
-        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=callback)
+        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=callback, policy=policy)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -364,12 +381,21 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
 @click.option("--max-dt", type=float, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
+@click.option("--keyframe-gap", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Each frame is estimated against a reference (keyframe) up to this many frames back; "
+                   "1 = frame to frame, the paper's chaining. 8 is much better where people walk "
+                   "through the picture (see jaxvo.TrackConfig).")
+@click.option("--keyframe-lag", type=click.IntRange(min=0), default=None,
+              help="After the reference moves it is this many frames behind the current one "
+                   "[default: half of --keyframe-gap].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
-            finest_level, save_masks, camera_preset, fx, fy, cx, cy, max_dt, no_progress):
+            finest_level, save_masks, camera_preset, fx, fy, cx, cy, max_dt, keyframe_gap, keyframe_lag,
+            no_progress):
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
+    policy = track_policy(keyframe_gap, keyframe_lag)
     if not Path(sequence_dir).exists():
         raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
     cam = resolve_camera(sequence_dir, camera_preset, fx, fy, cx, cy)
@@ -381,7 +407,7 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}", err=True)
     pbar = None if no_progress else _tqdm(total=len(seq) - 1, unit="frame", desc=config.method)
     try:
-        res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar)
+        res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar, policy=policy)
     finally:
         if pbar is not None:
             pbar.close()
@@ -831,11 +857,12 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
             config = Config(method=method)
             counts = np.zeros(4, np.int64)
 
-            def on_pair(i, est, pose, counts=counts, method=method):
+            def on_pair(step, counts=counts, method=method):
+                est = step.estimate
                 pred, val = _outlier_mask(est, cam.width, cam.height, valid_too=True)
-                s = mask_scores(pred, true_masks[i], val)
+                s = mask_scores(pred, true_masks[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
-                if i == show:
+                if step.reference == show:
                     shown[method] = (np.asarray(est.inlier_mask, bool), np.asarray(est.valid_mask, bool))
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")

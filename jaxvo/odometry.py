@@ -34,7 +34,7 @@ from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
 from jaxvo.solvers import irls, solve_pose
 
-__all__ = ["Config", "MotionEstimate", "estimate_motion", "track", "Track", "METHODS", "trace_count"]
+__all__ = ["Config", "MotionEstimate", "estimate_motion", "track", "Track", "TrackConfig", "METHODS", "trace_count"]
 
 METHODS = ("classic", "huber", "ransac")
 
@@ -338,59 +338,178 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
                          camera, config, key, T0)
 
 
+class TrackConfig(NamedTuple):
+    """How :func:`track` chooses each frame's reference and treats failed estimates (host-side policy).
+
+    Frame j is estimated against a reference frame k < j (a keyframe), starting from
+    frame j-1's pose relative to k. After frame j, once ``j - k >= max_gap`` the
+    reference moves to frame ``max(j - lag, k + 1)``, whose pose is already known.
+    ``max_gap=1, lag=0`` (the default) is the paper's frame-to-frame chaining;
+    :meth:`keyframes` (``max_gap=8, lag=4``) is what jaxvo recommends where people or
+    objects move through the picture.
+
+    Why keyframes: between consecutive frames (33 ms) people who walk at ~1 m/s move
+    ~3 cm, under the 5 cm depth threshold, so no inlier test can tell them from the
+    static scene and every estimator partly follows them. Against a reference a few
+    frames back they have moved far more than the camera, fail the thresholds, and
+    RANSAC's consensus is the static background. ``lag`` keeps the reference at least
+    ``lag`` frames back after a switch, and because the reference's pose came from an
+    estimate over a long baseline, errors of the short-baseline estimates do not
+    accumulate.
+
+    max_gap: frames between the reference and the current frame before the reference
+      moves (>= 1).
+    lag: after a move the reference is this many frames behind the current frame
+      (0 <= lag < max_gap; 0 = the current frame becomes the reference). Frames whose
+      estimate failed are skipped: the reference moves to the latest successful frame at
+      least ``lag`` back, or stays where it is.
+    hold_invalid: an estimate that is not ``valid`` or implies an implausible step from the
+      previous frame (beyond ``max_step`` metres or ``max_step_deg`` degrees) is replaced by
+      the previous frame's pose (constant position) and reported invalid.
+    """
+    max_gap: int = 1
+    lag: int = 0
+    hold_invalid: bool = True
+    max_step: float = 0.1
+    max_step_deg: float = 10.0
+
+    @classmethod
+    def frame_to_frame(cls, **changes) -> "TrackConfig":
+        """The paper's chaining: every frame against the one before it (the default)."""
+        return cls(max_gap=1, lag=0, **changes)
+
+    @classmethod
+    def keyframes(cls, max_gap: int = 8, lag: Optional[int] = None, **changes) -> "TrackConfig":
+        """References up to ``max_gap`` frames back, ``lag`` (default max_gap // 2) after a move."""
+        return cls(max_gap=max_gap, lag=max_gap // 2 if lag is None else lag, **changes)
+
+    def validate(self) -> None:
+        if int(self.max_gap) < 1:
+            raise ValueError(f"track config: max_gap must be >= 1, got {self.max_gap}")
+        if not 0 <= int(self.lag) < int(self.max_gap):
+            raise ValueError(f"track config: lag must lie in [0, max_gap), got lag={self.lag}, "
+                             f"max_gap={self.max_gap}")
+        if not (self.max_step > 0 and self.max_step_deg > 0):
+            raise ValueError("track config: max_step and max_step_deg must be > 0")
+
+
 class Track(NamedTuple):
     """Result of :func:`track`.
 
     poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default).
-    relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair.
-    inlier_ratio, valid: (N-1,) per pair.
+    relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1), from the poses.
+    inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed and was held).
+    reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
     """
     poses: np.ndarray
     relative: np.ndarray
     inlier_ratio: np.ndarray
     valid: np.ndarray
+    reference: np.ndarray
+
+
+class TrackStep(NamedTuple):
+    """What :func:`track` passes to its callback after each frame.
+
+    frame: index of the frame just estimated (>= 1). reference: index of the frame it was
+    estimated against (``estimate.inlier_mask`` lies on that frame's pixels).
+    estimate: the :class:`MotionEstimate` (T_cur_ref = T_frame_reference).
+    T_world_cur: (4, 4) float64 pose given to the frame. valid: False if the estimate failed
+    and the pose was held (see :class:`TrackConfig`).
+    """
+    frame: int
+    reference: int
+    estimate: MotionEstimate
+    T_world_cur: np.ndarray
+    valid: bool
+
+
+def _rigid(T) -> np.ndarray:
+    """float64 copy of a float32 estimate with its rotation re-orthonormalised, so that
+    chaining thousands of them (and inverting by transpose) stays rigid."""
+    T = np.array(T, np.float64)
+    if np.all(np.isfinite(T)):
+        T[:3, :3] = geometry.project_to_so3(T[:3, :3])
+    return T
 
 
 def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
-          T_world_first=None, callback=None) -> Track:
-    """Run :func:`estimate_motion` on consecutive frames and chain the results.
+          T_world_first=None, callback=None, policy: Optional[TrackConfig] = None) -> Track:
+    """Run :func:`estimate_motion` along a sequence and chain the results into poses.
 
-    Frames may be any iterable (e.g. a lazy sequence). The key for pair i is
-    ``jax.random.fold_in(key, i)``. Poses accumulate on the host in float64:
-    ``T_world_cur = T_world_ref @ inv(T_cur_ref)``. ``callback(i, estimate, T_world_cur)``
-    is called after each pair (e.g. to write the trajectory as it grows).
-    The estimator compiles once; the next pair is dispatched before the previous
-    result is pulled to the host, so reading frames overlaps computation.
+    Frames may be any iterable (e.g. a lazy sequence); only the last ``policy.max_gap``
+    frames are kept. Frame j (j >= 1) is estimated against a reference frame chosen by
+    ``policy`` (default :class:`TrackConfig`: frame to frame, the paper's chaining;
+    ``TrackConfig.keyframes()`` for dynamic scenes) with key
+    ``jax.random.fold_in(key, j - 1)``. Poses accumulate on the host in float64:
+    ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
+    ``callback(step)`` is called with a :class:`TrackStep` after each frame (e.g. to write
+    the trajectory as it grows). The estimator compiles once. In frame-to-frame
+    mode the next pair is dispatched before the previous result is pulled to the host,
+    so reading frames overlaps computation.
     """
     config = Config() if config is None else config
+    policy = TrackConfig() if policy is None else policy
+    policy.validate()
     key = jax.random.key(0) if key is None else key
     pose = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
-    poses, rel, ratios, valids = [pose], [], [], []
+    poses, ratios, valids, refs = [pose], [], [], []
     it = iter(frames)
     try:
-        prev = next(it)
+        first = next(it)
     except StopIteration:
         raise ValueError("track needs at least one frame") from None
-    pending = None  # (index, estimate) dispatched but not yet pulled to the host
+    window = {0: first}           # frames that may still serve as reference
+    ref = 0
+    max_step_rad = np.radians(policy.max_step_deg)
+    pipelined = policy.max_gap == 1 and not policy.hold_invalid
+    pending = None                # (j, ref, estimate) dispatched but not yet pulled to the host
 
-    def finish(i, est):
-        nonlocal pose
-        T = np.asarray(est.T_cur_ref, np.float64)
-        pose = pose @ geometry.inverse(T)
-        poses.append(pose)
-        rel.append(T)
+    def finish(j, k, est):
+        T = _rigid(est.T_cur_ref)
+        T_ref_world = geometry.inverse(poses[k])
+        T_prev = T_ref_world @ poses[j - 1]               # T_ref_prev
+        valid = bool(est.valid) and bool(np.all(np.isfinite(T)))
+        if valid:
+            step = T @ T_prev                              # T_cur_prev
+            valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
+                     and geometry.rotation_angle(step[:3, :3]) <= max_step_rad)
+        if not valid and policy.hold_invalid:
+            pose_j = poses[j - 1].copy()
+        else:
+            pose_j = poses[k] @ geometry.inverse(T)
+        poses.append(pose_j)
         ratios.append(float(est.inlier_ratio))
-        valids.append(bool(est.valid))
+        valids.append(valid)
+        refs.append(k)
         if callback is not None:
-            callback(i, est, pose)
+            callback(TrackStep(j, k, est, pose_j, valid))
 
-    for i, frame in enumerate(it):
-        est = estimate_motion(prev, frame, camera, config, jax.random.fold_in(key, i))
-        if pending is not None:
-            finish(*pending)
-        pending = (i, est)
-        prev = frame
+    for j, frame in enumerate(it, start=1):
+        window[j] = frame
+        if pipelined:
+            est = estimate_motion(window[j - 1], frame, camera, config, jax.random.fold_in(key, j - 1))
+            if pending is not None:
+                finish(*pending)
+            pending = (j, j - 1, est)
+            window.pop(j - 2, None)
+            continue
+        init = geometry.inverse(geometry.inverse(poses[ref]) @ poses[j - 1])   # T_prev_ref
+        est = estimate_motion(window[ref], frame, camera, config, jax.random.fold_in(key, j - 1), init=init)
+        finish(j, ref, est)
+        if j - ref >= policy.max_gap:
+            # the latest frame at least `lag` back whose own estimate succeeded: a failed
+            # (held) frame has no trustworthy pose and must not become a reference
+            good = [i for i in range(ref + 1, j - policy.lag + 1) if valids[i - 1]]
+            if good:
+                ref = good[-1]
+            elif j - ref >= 4 * policy.max_gap:
+                ref = j - policy.lag  # lost for long: restart from the held poses
+        for old in [i for i in window if i < ref]:
+            del window[old]
     if pending is not None:
         finish(*pending)
-    return Track(np.stack(poses), np.stack(rel) if rel else np.zeros((0, 4, 4)),
-                 np.asarray(ratios), np.asarray(valids, bool))
+    P = np.stack(poses)
+    rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
+        else np.zeros((0, 4, 4))
+    return Track(P, rel, np.asarray(ratios), np.asarray(valids, bool), np.asarray(refs, int))

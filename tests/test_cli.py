@@ -281,6 +281,41 @@ def test_fr2_desk_eval_seconds_and_plot(fr2_runs):
     assert np.allclose(poses[0], np.eye(4)) and len(stamps) == 50
 
 
+BONN_CROWD = data_root() / "bonn" / "rgbd_bonn_crowd"
+
+
+def _run_and_eval(tmp, seq_dir, method, *extra):
+    traj, js = tmp / f"{method}{''.join(map(str, extra))}.txt", tmp / f"{method}{''.join(map(str, extra))}.json"
+    r = _invoke(["run", seq_dir, "--method", method, "--out", traj, "--no-progress", *extra])
+    assert r.exit_code == 0, r.output
+    r = _invoke(["eval", seq_dir, traj, "--json", js])
+    assert r.exit_code == 0, r.output
+    d = json.loads(js.read_text())
+    return d["rpe"]["trans_m"]["rmse"], d["rpe"]["rot_deg"]["rmse"], d["ate"]["trans_m"]["rmse"]
+
+
+def test_bonn_crowd_160_frames_end_to_end(tmp_path):
+    """`jaxvo run` then `jaxvo eval` on the Bonn crowd excerpt (160 frames, three people walking).
+
+    Keyframes up to 8 frames back (``--keyframe-gap 8``), seed 0; RPE with a 1 s delta. The camera itself
+    moves only 0.087 m/s, so standing still scores RPE 0.087 m/s, 7.2 deg/s, ATE 0.089 m.
+    """
+    if not BONN_CROWD.is_dir():
+        pytest.skip(f"Bonn data not found: {BONN_CROWD} (set JAXVO_DATA to the data root)")
+    ransac = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--keyframe-gap", 8)
+    classic = _run_and_eval(tmp_path, BONN_CROWD, "classic", "--keyframe-gap", 8)
+    classic_f2f = _run_and_eval(tmp_path, BONN_CROWD, "classic")
+    print("ransac", ransac, "classic", classic, "classic frame-to-frame", classic_f2f)
+    # measured: ransac 0.123 m/s, 2.64 deg/s, ATE 0.066 m; classic with the same keyframes
+    # 0.094, 6.90, 0.066 (121 of 159 frames fail and hold the previous pose, which on this
+    # nearly still camera is what standing still scores); classic frame to frame (the
+    # paper's chaining) 0.724, 12.7, 0.660.
+    assert ransac[0] < 0.3 * classic_f2f[0] and ransac[2] < 0.3 * classic_f2f[2], (ransac, classic_f2f)
+    # ransac follows the camera's rotation, which classic's held poses (and standing still) do not
+    assert ransac[1] < 0.6 * classic[1] and ransac[1] < 4.0, (ransac, classic)
+    assert ransac[0] < 1.6 * classic[0] and ransac[2] < 1.6 * classic[2], (ransac, classic)
+
+
 def test_cli_matches_library_track(tmp_path, synth_seq):
     """`jaxvo run` writes exactly what jaxvo.odometry.track computes (same keys, same chaining)."""
     import jax
@@ -323,3 +358,15 @@ def test_demo_short(tmp_path):
     d = json.loads((out / "results.json").read_text())
     m = d["methods"]
     assert m["ransac"]["rpe_1f"]["trans_m"]["rmse"] < m["classic"]["rpe_1f"]["trans_m"]["rmse"], m
+
+
+def test_keyframe_options(tmp_path, synth_seq):
+    bad = _invoke(["run", synth_seq, "--keyframe-gap", 3, "--keyframe-lag", 3, "--out", tmp_path / "t.txt",
+                   "--no-progress"])
+    assert bad.exit_code == 2 and "--keyframe-lag 3 must be smaller than --keyframe-gap 3" in bad.output
+    masks = tmp_path / "masks"
+    r = _invoke(["run", synth_seq, "--max-frames", 6, "--keyframe-gap", 3, "--out", tmp_path / "t.txt",
+                 "--save-masks", masks, "--no-progress"])
+    assert r.exit_code == 0, r.output
+    # references 0 (frames 1-3) then 2 (frames 4-5): one mask per reference, on its pixels
+    assert len(list(masks.glob("*.png"))) == 2

@@ -28,15 +28,15 @@ def _sequence(name):
     return TumSequence(path)
 
 
-def _pair_errors(seq, pairs, method):
-    """Translational (mm) and rotational (deg) error of each consecutive pair's T_cur_ref."""
+def _pair_errors(seq, pairs, method, gap=1):
+    """Translational (mm) and rotational (deg) error of T_cur_ref of each pair (i, i + gap)."""
     covered, T_world_cam = seq.groundtruth_at_frames()
     cfg = Config(method=method)
     t_err, r_err = [], []
     for i in pairs:
-        assert covered[i] and covered[i + 1]
-        est = estimate_motion(seq.frame(i), seq.frame(i + 1), seq.camera, cfg, jax.random.key(i))
-        gt = np.linalg.inv(T_world_cam[i + 1]) @ T_world_cam[i]
+        assert covered[i] and covered[i + gap]
+        est = estimate_motion(seq.frame(i), seq.frame(i + gap), seq.camera, cfg, jax.random.key(i))
+        gt = np.linalg.inv(T_world_cam[i + gap]) @ T_world_cam[i]
         E = np.linalg.inv(gt) @ np.asarray(est.T_cur_ref, np.float64)
         t_err.append(1000 * np.linalg.norm(E[:3, 3]))
         r_err.append(np.degrees(geometry.rotation_angle(E[:3, :3])))
@@ -73,14 +73,14 @@ def test_bonn_crowd_before_the_people_arrive(bonn_crowd, method):
 
 
 def test_bonn_crowd_with_people_walking(bonn_crowd):
-    """People cover much of the image from frame ~60 on.
+    """Consecutive frames while people cover much of the image (frame ~60 on).
 
-    Measured (pairs 60, 63, ..., 159): translational RMSE classic 24.7 mm, huber 26.0,
-    ransac 26.8 (pairs 60, 66, ...: 24.8 / 26.1 / 27.3); the camera itself moves ~3 mm
-    per frame. None of the three methods
-    copes: the people are the best-textured, nearest surfaces and pass the paper's
-    inlier thresholds under the pose that follows them. This test pins that all three
-    stay bounded (no divergence); it does not claim that ransac wins here.
+    Measured (pairs 60, 66, ..., 156): translational RMSE classic 24.8 mm, ransac 27.3 mm;
+    the camera itself moves ~3 mm per frame. In 33 ms a person walking at ~1 m/s moves
+    ~3 cm, under the paper's 5 cm depth threshold, and the persons are the nearest,
+    best-textured surfaces: every estimator partly follows them, and no inlier test can
+    tell them apart on one frame step. This test pins only that all stay bounded; the
+    next test and ``jaxvo.TrackConfig`` (keyframes) are how jaxvo copes.
     """
     pairs = range(60, 159, 6)
     rmse = {}
@@ -89,3 +89,21 @@ def test_bonn_crowd_with_people_walking(bonn_crowd):
         assert t.max() < 60.0, (method, t.max())
         rmse[method] = np.sqrt(np.mean(t ** 2))
     assert rmse["ransac"] < 1.4 * rmse["classic"], rmse
+
+
+def test_bonn_crowd_pairs_six_frames_apart(bonn_crowd):
+    """People cover much of the image and have moved well beyond the thresholds between the
+    two frames (0.2 s apart): ransac's consensus is the static background, classic's least
+    squares is dragged by the people.
+
+    Measured (pairs (i, i+6), i = 60, 66, ..., 144, key(i), from identity): translational
+    error median classic 133 mm, ransac 26 mm; RMSE 154 vs 114 mm (ransac fails on 3 of the
+    15 pairs, 138-308 mm, where a near, motion-blurred person fills the right half).
+    """
+    pairs = range(60, 150, 6)
+    med, rmse = {}, {}
+    for method in ("classic", "ransac"):
+        t, _ = _pair_errors(bonn_crowd, pairs, method, gap=6)
+        med[method], rmse[method] = np.median(t), np.sqrt(np.mean(t ** 2))
+    assert med["ransac"] < 0.35 * med["classic"], med
+    assert rmse["ransac"] < rmse["classic"], rmse
