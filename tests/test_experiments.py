@@ -116,3 +116,17 @@ def test_paper_sequences_quick(tmp_path):
     assert row["mask_precision"] is None or 0 <= row["mask_precision"] <= 1
     for f in data["figures"]["seq1"].values():
         assert Path(f).stat().st_size > 1000
+
+
+def test_keyframes_small(tmp_path):
+    _require(STATIC)
+    out = tmp_path / "kf.md"
+    _script("keyframes").main([str(STATIC), "--max-frames", "6", "--gap", "3", "--methods", "classic",
+                               "--out", str(out)])
+    text = out.read_text()
+    assert "python experiments/keyframes.py" in text and "standing still" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    rows = {(r["method"], r["chaining"]): r for r in data["rows"]}
+    assert set(rows) == {("standing still", "-"), ("classic", "frame to frame"), ("classic", "keyframes 3")}
+    for key in (("classic", "frame to frame"), ("classic", "keyframes 3")):
+        assert rows[key]["failures"] == 0 and 0 <= rows[key]["rpef_t"] < 0.02
