@@ -186,7 +186,7 @@ def test_track_keyframe_references_and_poses(static_pair):
 
 
 def test_track_frame_to_frame_paths_agree(static_pair):
-    """The pipelined frame-to-frame loop (no failure handling) and the general loop give the same poses."""
+    """Frame to frame with and without failure handling give the same poses when nothing fails."""
     a, b = static_pair
     frames = [a.frame(), b.frame(), a.frame()]
     cfg = Config(method="classic")
