@@ -1,17 +1,22 @@
-"""Frame-to-frame chaining vs keyframes (``jaxvo.TrackConfig``) on real sequences.
+"""Frame-to-frame chaining vs keyframes (``jaxvo.TrackConfig``) on real sequences, per keyframe gap.
 
-For each sequence and method it runs ``jaxvo.track`` twice, with the paper's
-frame-to-frame chaining and with references up to ``--gap`` frames back, and
-scores the trajectories against ground truth: RPE with a 1 s delta (m/s,
-deg/s), RPE per frame, ATE, and how many frames failed (held their previous
-pose). A "standing still" row (every relative motion the identity) shows what a
-tracker that does nothing scores, which matters on a nearly still camera.
+For each sequence, method and keyframe gap (``max_gap``; ``lag = gap // 2``; gap 1 is
+the paper's frame-to-frame chaining) it runs ``jaxvo.track`` and scores the
+trajectory against ground truth: RPE with a 1 s delta (m/s, deg/s), RPE per frame,
+ATE, and how many frames failed (held their previous pose). ``ransac`` runs once per
+seed; ``classic`` and ``huber`` draw no random numbers and run once. A "standing
+still" row (every relative motion the identity) shows what a tracker that does nothing
+scores, which matters on a nearly still camera.
+
+A second table compares the methods under the *same* policy: for every gap, ransac
+(mean and range over the seeds) against classic, and their ratio.
 
 Writes ``keyframes.md`` and ``keyframes.json``.
 
 Example::
 
     python experiments/keyframes.py                      # Bonn crowd and TUM fr2_desk
+    python experiments/keyframes.py --gaps 1,6 --seeds 0,1,2 --methods classic,ransac
     python experiments/keyframes.py --max-frames 20 --out /tmp/kf.md
 """
 from __future__ import annotations
@@ -38,17 +43,36 @@ def parse_args(argv=None):
     ap.add_argument("sequences", nargs="*", help="TUM-layout sequence folders (default: "
                     + ", ".join(f"data_root()/{s}" for s in DEFAULT_SEQUENCES) + ")")
     ap.add_argument("--methods", default="classic,huber,ransac", help="comma-separated jaxvo methods")
-    ap.add_argument("--gap", type=int, default=8, help="keyframe max_gap (default 8; lag = gap // 2)")
+    ap.add_argument("--gaps", default="1,2,4,6,8",
+                    help="comma-separated keyframe max_gap values (lag = gap // 2; 1 = frame to frame)")
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames per sequence")
-    ap.add_argument("--seed", type=int, default=0, help="PRNG key seed (default 0)")
+    ap.add_argument("--seeds", default="0", help="comma-separated PRNG key seeds for ransac (default 0)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "keyframes.md"),
                     help="markdown output (JSON next to it)")
     return ap.parse_args(argv)
 
 
-def _row(seq, name, policy_name, relative, valid=None, seconds=None):
+def _ints(text: str, what: str):
+    try:
+        values = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise SystemExit(f"--{what}: expected comma-separated integers, got {text!r}") from None
+    if not values:
+        raise SystemExit(f"--{what}: empty list")
+    return values
+
+
+def _policy(gap: int):
+    if gap < 1:
+        raise SystemExit(f"--gaps: a keyframe gap must be >= 1, got {gap}")
+    if gap == 1:
+        return "frame to frame", TrackConfig.frame_to_frame()
+    return f"keyframes {gap}", TrackConfig.keyframes(gap)
+
+
+def _row(seq, name, policy_name, relative, valid=None, seconds=None, gap=None, seed=None):
     ev = common.evaluate(seq, relative)
-    return {"sequence": seq.name, "method": name, "chaining": policy_name, **ev,
+    return {"sequence": seq.name, "method": name, "chaining": policy_name, "gap": gap, "seed": seed, **ev,
             "failures": None if valid is None else int(np.sum(~np.asarray(valid))),
             "ms_per_frame": seconds}
 
@@ -59,26 +83,26 @@ def main(argv=None) -> Path:
     paths = [p for p in paths if p.is_dir()]
     if not paths:
         raise SystemExit(common.missing_data_message())
-    methods = common.parse_methods(args.methods)
-    policies = {"frame to frame": TrackConfig.frame_to_frame(),
-                f"keyframes {args.gap}": TrackConfig.keyframes(args.gap)}
+    methods = [m for m in common.parse_methods(args.methods) if not common.is_peer(m)]
+    gaps, seeds = _ints(args.gaps, "gaps"), _ints(args.seeds, "seeds")
+    policies = [(gap, *_policy(gap)) for gap in gaps]
     rows = []
     for path in paths:
         seq = common.open_sequence(path, args.max_frames)
         frames = common.load_frames(seq)
         rows.append(_row(seq, "standing still", "-", [np.eye(4)] * (len(frames) - 1)))
         for method in methods:
-            if common.is_peer(method):
-                continue
-            for pname, policy in policies.items():
-                t0 = time.perf_counter()
-                tr = track(frames, seq.camera, Config(method=method), jax.random.key(args.seed), policy=policy)
-                ms = 1000 * (time.perf_counter() - t0) / max(len(frames) - 1, 1)
-                rows.append(_row(seq, method, pname, tr.relative, tr.valid, ms))
-                r = rows[-1]
-                common.log(f"{seq.name} {method} {pname}: RPE 1 s {common.fmt(r['rpe1s_t'])} m/s "
-                           f"{common.fmt(r['rpe1s_r'], '.2f')} deg/s, ATE {common.fmt(r['ate'])} m, "
-                           f"failures {r['failures']}")
+            for gap, pname, policy in policies:
+                for seed in (seeds if method == "ransac" else seeds[:1]):
+                    t0 = time.perf_counter()
+                    tr = track(frames, seq.camera, Config(method=method), jax.random.key(seed), policy=policy)
+                    ms = 1000 * (time.perf_counter() - t0) / max(len(frames) - 1, 1)
+                    rows.append(_row(seq, method, pname, tr.relative, tr.valid, ms, gap,
+                                     seed if method == "ransac" else None))
+                    r = rows[-1]
+                    common.log(f"{seq.name} {method} {pname} seed {r['seed']}: RPE 1 s {common.fmt(r['rpe1s_t'])} "
+                               f"m/s {common.fmt(r['rpe1s_r'], '.2f')} deg/s, ATE {common.fmt(r['ate'])} m, "
+                               f"failures {r['failures']}")
     for r in rows:
         r["rpef_t_mm"] = None if r.get("rpef_t") is None else 1000 * r["rpef_t"]
     lines = common.provenance_md(
@@ -90,9 +114,49 @@ def main(argv=None) -> Path:
                                     ("chaining", "chaining", ""), ("RPE 1 s [m/s]", "rpe1s_t", ".4f"),
                                     ("RPE 1 s [deg/s]", "rpe1s_r", ".2f"), ("RPE 1 f [mm]", "rpef_t_mm", ".2f"),
                                     ("ATE [m]", "ate", ".4f"), ("failures", "failures", ""),
-                                    ("ms/frame", "ms_per_frame", ".0f")])
-    out = common.write_outputs(args.out, lines, {"rows": rows, "args": vars(args)})
+                                    ("seed", "seed", ""), ("ms/frame", "ms_per_frame", ".0f")])
+    compare = same_policy_comparison(rows)
+    if compare:
+        lines += ["", "## ransac against classic under the same policy", "",
+                  "ransac: mean over the seeds [min, max]; ratio: ransac mean / classic (below 1: ransac better).", ""]
+        lines += common.md_table(compare, [
+            ("sequence", "sequence", ""), ("chaining", "chaining", ""),
+            ("classic RPE 1 s [m/s]", "classic_rpe1s_t", ".4f"), ("ransac RPE 1 s [m/s]", "ransac_rpe1s_t", ""),
+            ("ratio", "ratio_rpe1s_t", ".2f"), ("classic [deg/s]", "classic_rpe1s_r", ".2f"),
+            ("ransac [deg/s]", "ransac_rpe1s_r", ""), ("classic ATE [m]", "classic_ate", ".4f"),
+            ("ransac ATE [m]", "ransac_ate", ""), ("ratio ATE", "ratio_ate", ".2f"),
+            ("failures classic / ransac", "failures", "")])
+    out = common.write_outputs(args.out, lines, {"rows": rows, "same_policy": compare, "args": vars(args)})
     common.log(f"wrote {out}")
+    return out
+
+
+def same_policy_comparison(rows):
+    """Per (sequence, chaining) with both methods: classic's scores, ransac's mean [min, max] over
+    seeds, and the ratio of the means."""
+    out = []
+    keys = dict.fromkeys((r["sequence"], r["chaining"]) for r in rows if r["method"] == "ransac")
+    for seq, chaining in keys:
+        rs = [r for r in rows if r["sequence"] == seq and r["chaining"] == chaining and r["method"] == "ransac"]
+        cs = [r for r in rows if r["sequence"] == seq and r["chaining"] == chaining and r["method"] == "classic"]
+        if not cs:
+            continue
+        c = cs[0]
+        row = {"sequence": seq, "chaining": chaining, "seeds": [r["seed"] for r in rs]}
+        for m, spec in (("rpe1s_t", ".4f"), ("rpe1s_r", ".2f"), ("ate", ".4f")):
+            vals = [r[m] for r in rs if r[m] is not None]
+            row[f"classic_{m}"] = c[m]
+            if not vals:
+                row[f"ransac_{m}"] = None
+                continue
+            mean = float(np.mean(vals))
+            row[f"ransac_{m}_mean"] = mean
+            row[f"ransac_{m}"] = (f"{mean:{spec}}" if len(vals) == 1 else
+                                  f"{mean:{spec}} [{min(vals):{spec}}, {max(vals):{spec}}]")
+            if m != "rpe1s_r" and c[m]:
+                row[f"ratio_{m}"] = mean / c[m]
+        row["failures"] = f"{c['failures']} / {', '.join(str(r['failures']) for r in rs)}"
+        out.append(row)
     return out
 
 

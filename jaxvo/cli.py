@@ -383,7 +383,7 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=1, show_default=True,
               help="Each frame is estimated against a reference (keyframe) up to this many frames back; "
-                   "1 = frame to frame, the paper's chaining. 8 is much better where people walk "
+                   "1 = frame to frame, the paper's chaining. 6 is much better where people walk "
                    "through the picture (see jaxvo.TrackConfig).")
 @click.option("--keyframe-lag", type=click.IntRange(min=0), default=None,
               help="After the reference moves it is this many frames behind the current one "

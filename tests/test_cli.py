@@ -297,23 +297,23 @@ def _run_and_eval(tmp, seq_dir, method, *extra):
 def test_bonn_crowd_160_frames_end_to_end(tmp_path):
     """`jaxvo run` then `jaxvo eval` on the Bonn crowd excerpt (160 frames, three people walking).
 
-    Keyframes up to 8 frames back (``--keyframe-gap 8``), seed 0; RPE with a 1 s delta. The camera itself
-    moves only 0.087 m/s, so standing still scores RPE 0.087 m/s, 7.2 deg/s, ATE 0.089 m.
+    Both methods under the same policy, keyframes up to 6 frames back (``--keyframe-gap 6``),
+    seed 0; RPE with a 1 s delta, ATE after alignment. The camera itself moves only 0.087 m/s:
+    standing still scores RPE 0.087 m/s, 7.2 deg/s, ATE 0.089 m.
     """
     if not BONN_CROWD.is_dir():
         pytest.skip(f"Bonn data not found: {BONN_CROWD} (set JAXVO_DATA to the data root)")
-    ransac = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--keyframe-gap", 8)
-    classic = _run_and_eval(tmp_path, BONN_CROWD, "classic", "--keyframe-gap", 8)
+    ransac = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--keyframe-gap", 6)
+    classic = _run_and_eval(tmp_path, BONN_CROWD, "classic", "--keyframe-gap", 6)
     classic_f2f = _run_and_eval(tmp_path, BONN_CROWD, "classic")
     print("ransac", ransac, "classic", classic, "classic frame-to-frame", classic_f2f)
-    # measured: ransac 0.123 m/s, 2.64 deg/s, ATE 0.066 m; classic with the same keyframes
-    # 0.094, 6.90, 0.066 (121 of 159 frames fail and hold the previous pose, which on this
-    # nearly still camera is what standing still scores); classic frame to frame (the
-    # paper's chaining) 0.724, 12.7, 0.660.
+    # measured (experiments/keyframes.py): ransac 0.107 m/s, 2.38 deg/s, ATE 0.093 m (seeds 1, 2:
+    # 0.117 / 0.120 m/s, ATE 0.101 / 0.088); classic with the same keyframes 0.228 m/s,
+    # 7.33 deg/s, ATE 0.168 m (102 of 159 frames fail and hold their pose); classic frame to
+    # frame (the paper's chaining) 0.724 m/s, 12.7 deg/s, ATE 0.660 m.
+    assert ransac[0] < 0.7 * classic[0] and ransac[2] < 0.75 * classic[2], (ransac, classic)
+    assert ransac[1] < 0.6 * classic[1] and ransac[1] < 4.5, (ransac, classic)
     assert ransac[0] < 0.3 * classic_f2f[0] and ransac[2] < 0.3 * classic_f2f[2], (ransac, classic_f2f)
-    # ransac follows the camera's rotation, which classic's held poses (and standing still) do not
-    assert ransac[1] < 0.6 * classic[1] and ransac[1] < 4.0, (ransac, classic)
-    assert ransac[0] < 1.6 * classic[0] and ransac[2] < 1.6 * classic[2], (ransac, classic)
 
 
 def test_cli_matches_library_track(tmp_path, synth_seq):

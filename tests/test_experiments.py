@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from jaxvo.datasets import data_root
@@ -121,12 +122,23 @@ def test_paper_sequences_quick(tmp_path):
 def test_keyframes_small(tmp_path):
     _require(STATIC)
     out = tmp_path / "kf.md"
-    _script("keyframes").main([str(STATIC), "--max-frames", "6", "--gap", "3", "--methods", "classic",
-                               "--out", str(out)])
+    _script("keyframes").main([str(STATIC), "--max-frames", "6", "--gaps", "1,3", "--seeds", "0,1",
+                               "--methods", "classic,ransac", "--out", str(out)])
     text = out.read_text()
     assert "python experiments/keyframes.py" in text and "standing still" in text
     data = json.loads(out.with_suffix(".json").read_text())
-    rows = {(r["method"], r["chaining"]): r for r in data["rows"]}
-    assert set(rows) == {("standing still", "-"), ("classic", "frame to frame"), ("classic", "keyframes 3")}
-    for key in (("classic", "frame to frame"), ("classic", "keyframes 3")):
-        assert rows[key]["failures"] == 0 and 0 <= rows[key]["rpef_t"] < 0.02
+    rows = {(r["method"], r["chaining"], r["seed"]): r for r in data["rows"]}
+    # ransac once per seed, classic (no random numbers) once
+    assert set(rows) == {("standing still", "-", None), ("classic", "frame to frame", None),
+                         ("classic", "keyframes 3", None), ("ransac", "frame to frame", 0),
+                         ("ransac", "frame to frame", 1), ("ransac", "keyframes 3", 0), ("ransac", "keyframes 3", 1)}
+    for key, r in rows.items():
+        if key[0] != "standing still":
+            assert r["failures"] == 0 and 0 <= r["rpef_t"] < 0.02, (key, r)
+    same = {c["chaining"]: c for c in data["same_policy"]}
+    assert set(same) == {"frame to frame", "keyframes 3"}
+    for chaining, c in same.items():
+        mean = np.mean([rows[("ransac", chaining, s)]["ate"] for s in (0, 1)])
+        assert c["ransac_ate_mean"] == pytest.approx(mean)
+        assert c["ratio_ate"] == pytest.approx(mean / rows[("classic", chaining, None)]["ate"])
+    assert "same policy" in text
