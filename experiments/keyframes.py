@@ -65,9 +65,8 @@ def _ints(text: str, what: str):
 def _policy(gap: int):
     if gap < 1:
         raise SystemExit(f"--gaps: a keyframe gap must be >= 1, got {gap}")
-    if gap == 1:
-        return "frame to frame", TrackConfig.frame_to_frame()
-    return f"keyframes {gap}", TrackConfig.keyframes(gap)
+    # keyframes(1) is max_gap 1, lag 0: the paper's frame-to-frame chaining
+    return ("frame to frame" if gap == 1 else f"keyframes {gap}"), TrackConfig.keyframes(gap)
 
 
 def _row(seq, name, policy_name, relative, valid=None, seconds=None, gap=None, seed=None):
