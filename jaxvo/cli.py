@@ -21,6 +21,7 @@ from typing import Callable, Dict, List, Optional
 import click
 import numpy as np
 
+from jaxvo import cache
 from jaxvo.camera import DEFAULT, PRESETS, Camera, camera_for_sequence
 from jaxvo.datasets import DatasetError, TumSequence, is_bonn_sequence, read_file_list, read_groundtruth
 
@@ -69,6 +70,33 @@ def _handle_errors(f):
             click.echo(f"error: {_one_line(e)}", err=True)
             sys.exit(2)
     return wrapper
+
+
+def _compilation_cache(f):
+    """Options --cache-dir / --no-cache of a command that compiles the estimator; switches on JAX's
+    persistent compilation cache (:mod:`jaxvo.cache`) before the command runs."""
+    @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+                  help="Folder of JAX's persistent compilation cache: a later run skips compilation. "
+                       f"[default: ${cache.ENV}, else $XDG_CACHE_HOME/jaxvo or ~/.cache/jaxvo; "
+                       f"{cache.ENV}=off turns it off]")
+    @click.option("--no-cache", is_flag=True, help="Do not use the persistent compilation cache.")
+    @functools.wraps(f)
+    def wrapper(*args, cache_dir=None, no_cache=False, **kwargs):
+        want = cache.cache_dir(cache_dir, no_cache)
+        if want is not None and cache.enable(want) is None:
+            click.echo(f"warning: {want}: cannot create the compilation cache folder; compiling without it",
+                       err=True)
+        return f(*args, **kwargs)
+    return wrapper
+
+
+def _device() -> str:
+    """The device the estimator runs on, e.g. 'cpu:0' or 'gpu:0 (NVIDIA H100 80GB HBM3)' (the first of jax.devices())."""
+    import jax
+
+    d = jax.devices()[0]
+    kind = f" ({d.device_kind})" if d.device_kind != d.platform else ""
+    return f"{d.platform}:{d.id}{kind}"
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -389,6 +417,7 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="After the reference moves it is this many frames behind the current one "
                    "[default: half of --keyframe-gap].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@_compilation_cache
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, fx, fy, cx, cy, max_dt, keyframe_gap, keyframe_lag,
@@ -404,7 +433,8 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
         raise DatasetError(f"{sequence_dir}: only {len(seq)} frame(s) to use, need at least 2")
     seq.check(1)                 # a bad first image is reported before compiling
     gt = seq.groundtruth         # and so is ground truth that does not cover the frames
-    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}", err=True)
+    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}, "
+               f"device {_device()}", err=True)
     pbar = None if no_progress else _tqdm(total=len(seq) - 1, unit="frame", desc=config.method)
     try:
         res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar, policy=policy)
@@ -790,6 +820,7 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
 @click.option("--size", type=click.Choice(list(SIZES)), default="320x240", show_default=True, help="Image size.")
 @click.option("--sensor/--no-sensor", default=True, show_default=True, help="Kinect-like sensor effects.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@_compilation_cache
 @_handle_errors
 def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress):
     result = run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size, sensor=sensor,
