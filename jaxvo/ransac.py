@@ -33,7 +33,8 @@ from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
 from jaxvo.solvers import solve_pose
 
-__all__ = ["num_hypotheses", "inliers", "sample_patches", "RansacResult", "ransac_level"]
+__all__ = ["num_hypotheses", "inliers", "sample_patches", "score_pose", "fit_hypothesis", "RansacResult",
+           "ransac_level"]
 
 
 def num_hypotheses(p, w, n):
@@ -75,6 +76,26 @@ def sample_patches(key, level: Level, n: int, batch: int, radius: int):
     return pu, pv
 
 
+def score_pose(T, score_ref: RefPoints, cur_level: Level, camera: Camera, thresh_lum, thresh_depth,
+               scoring: str = "count"):
+    """(quality, weighted inlier count) of the pose T_cur_ref on the scoring points; see :func:`ransac_level`."""
+    res = residuals(T, score_ref, cur_level, camera)
+    inl = inliers(res, thresh_lum, thresh_depth)
+    count = jnp.sum(jnp.where(inl, score_ref.weight, 0.0))
+    if scoring == "count":
+        return count, count
+    e2 = 0.5 * ((res.r_int / thresh_lum) ** 2 + (res.r_depth / thresh_depth) ** 2)
+    return jnp.sum(jnp.where(inl, score_ref.weight * (1.0 - e2), 0.0)), count
+
+
+def fit_hypothesis(T_init, ref_level: Level, cur_level: Level, camera: Camera, pu, pv, iterations: int,
+                   depth_weight=None):
+    """(4, 4) T_cur_ref fitted, from ``T_init``, to the reference pixels (pu, pv) (integer, (M,)) only."""
+    pts = gather_points(ref_level, camera, pu, pv)
+    return solve_pose(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
+                      iterations, depth_weight=depth_weight).T
+
+
 class RansacResult(NamedTuple):
     """T: (4, 4) best T_cur_ref; inlier_ratio: its ratio on the scoring pixels;
     hypotheses: sampled hypotheses evaluated (int32, the scored initial pose not counted)."""
@@ -104,18 +125,10 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
 
     def score(T):
-        res = residuals(T, score_ref, cur_level, camera)
-        inl = inliers(res, thresh_lum, thresh_depth)
-        count = jnp.sum(jnp.where(inl, score_ref.weight, 0.0))
-        if scoring == "count":
-            return count, count
-        e2 = 0.5 * ((res.r_int / thresh_lum) ** 2 + (res.r_depth / thresh_depth) ** 2)
-        return jnp.sum(jnp.where(inl, score_ref.weight * (1.0 - e2), 0.0)), count
+        return score_pose(T, score_ref, cur_level, camera, thresh_lum, thresh_depth, scoring)
 
     def hypothesis(pu, pv):
-        pts = gather_points(ref_level, camera, pu, pv)
-        return solve_pose(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
-                          hypothesis_iterations, depth_weight=depth_weight).T
+        return fit_hypothesis(T_init, ref_level, cur_level, camera, pu, pv, hypothesis_iterations, depth_weight)
 
     def cond(state):
         b, _, _, best_count, _ = state

@@ -70,7 +70,7 @@ def test_table1_quick(tmp_path, cache):
 def test_speed_quick(tmp_path):
     _require(STATIC, DYNAMIC)
     out = tmp_path / "speed.md"
-    _script("speed").main(["--quick", "--methods", "classic", "--batch", "1", "--out", str(out)])
+    _script("speed").main(["--quick", "--methods", "classic", "--batch", "1", "--default-frames", "0", "--out", str(out)])
     text = out.read_text()
     assert "python experiments/speed.py" in text and "CPUs" in text
     data = json.loads(out.with_suffix(".json").read_text())
@@ -78,6 +78,12 @@ def test_speed_quick(tmp_path):
     for r in data["methods"]:
         assert r["median_ms"] > 0 and r["fps"] > 0
     assert data["methods"][0]["compile_s"] > 0
+    stages = {(r["set"], r["level"], r["stage"]) for r in data["stages"]}
+    assert ("static", "all", "pyramid") in stages and ("dynamic", 0, "solve") in stages
+    for r in data["stages"]:
+        if r["stage"] == "max |T - estimate|":
+            assert r["value"] < 1e-4  # the stage replay reaches the estimator's pose
+    assert data["default"] == []  # skipped here: it compiles the full ransac estimator
     assert data["levels"] and data["levels"][0]["level"] == 3
     assert [r["method"] for r in data["peers"]] == ["opencv-rgb", "opencv-rgb"]
     assert "opencv-rgb" in data["ratios"][0]
