@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jaxvo.camera import Camera
 from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
-from jaxvo.solvers import solve_pose
+from jaxvo.solvers import solve_pose_small
 
 __all__ = ["num_hypotheses", "inliers", "sample_patches", "score_pose", "fit_hypothesis", "RansacResult",
            "ransac_level"]
@@ -92,8 +92,9 @@ def fit_hypothesis(T_init, ref_level: Level, cur_level: Level, camera: Camera, p
                    depth_weight=None):
     """(4, 4) T_cur_ref fitted, from ``T_init``, to the reference pixels (pu, pv) (integer, (M,)) only."""
     pts = gather_points(ref_level, camera, pu, pv)
-    return solve_pose(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
-                      iterations, depth_weight=depth_weight).T
+    # the written-out 6x6 LM: jaxopt's iterates, a much smaller program under vmap
+    return solve_pose_small(T_init, pts, cur_level, camera, pts.valid.astype(jnp.float32),
+                            iterations, depth_weight=depth_weight).T
 
 
 class RansacResult(NamedTuple):
@@ -113,7 +114,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
     reference points the hypotheses are scored on. depth_weight: None fits each
     hypothesis on the photometric residual only (the paper); a number adds the
-    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose`).
+    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose_small`).
     scoring: "count" ranks hypotheses by their inlier count (the paper);
     "msac" by the truncated-quadratic (MSAC, Torr & Zisserman 2000) score
     sum over inliers of 1 - ((r_I/t_I)^2 + (r_Z/t_Z)^2) / 2, which prefers the

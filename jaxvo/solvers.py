@@ -1,8 +1,10 @@
 """Weighted Gauss-Newton pose refinement and robust weight functions.
 
 This is the one module that touches jaxopt. The pose is refined by
-``jaxopt.LevenbergMarquardt`` (Gauss-Newton with adaptive damping, which keeps
-the tiny 54-residual RANSAC problems well posed) on the photometric residual,
+``jaxopt.LevenbergMarquardt`` (Gauss-Newton with adaptive damping) on the photometric residual
+(:func:`solve_pose`: the levels' solves and the consensus refinement); the tiny 54-residual
+RANSAC hypotheses, solved by the hundred under ``vmap``, use the same LM written out on the
+closed-form 6x6 normal equations (:func:`solve_pose_small`), a fraction of jaxopt's program,
 with per-residual weights passed as arrays so that shapes stay static: a
 weight of 0 removes a pixel without changing any shape. The Jacobian is
 materialised analytically (:func:`jaxvo.residuals.photometric_terms`), not by
@@ -25,7 +27,7 @@ from jaxvo.camera import Camera
 from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, photometric_terms, residuals, rgbd_terms
 
-__all__ = ["Solution", "solve_pose", "robust_scale", "huber_weights", "irls"]
+__all__ = ["Solution", "solve_pose", "solve_pose_small", "robust_scale", "huber_weights", "irls"]
 
 # Consistency constant of the MAD for a Gaussian: sigma = 1.4826 * median(|r|).
 MAD_TO_SIGMA = 1.4826
@@ -122,6 +124,78 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
     delta = jnp.where(ok, params, 0.0)
     return Solution(geometry.exp(delta) @ T0, state.iter_num.astype(jnp.int32), state.jtj * total,
                     state.value * total)
+
+
+def _cholesky_solve6(A, b):
+    """x with A x = b for a symmetric positive definite (6, 6) A, Cholesky written out.
+
+    For tiny systems solved by the thousand under ``vmap`` this is plain element-wise
+    arithmetic, cheaper to compile and to run than a batched LAPACK call.
+    """
+    n = A.shape[0]
+    Lm = [[None] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = A[i, j] - sum((Lm[i][k] * Lm[j][k] for k in range(j)), jnp.zeros((), A.dtype))
+            if i == j:
+                Lm[i][i] = jnp.sqrt(jnp.maximum(acc, 1e-30))
+            else:
+                Lm[i][j] = acc / Lm[j][j]
+    y = []
+    for i in range(n):
+        y.append((b[i] - sum((Lm[i][k] * y[k] for k in range(i)), jnp.zeros((), b.dtype))) / Lm[i][i])
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - sum((Lm[k][i] * x[k] for k in range(i + 1, n)), jnp.zeros((), b.dtype))) / Lm[i][i]
+    return jnp.stack(x)
+
+
+def solve_pose_small(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter: int,
+                     xtol: float = 1e-4, depth_weight=None) -> Solution:
+    """:func:`solve_pose` written out for small problems (the RANSAC hypotheses' 54 pixels).
+
+    The same Levenberg-Marquardt (Madsen & Nielsen's damping update, as jaxopt's, on the left
+    increment ``delta`` of ``T0``, the same stopping rules: step shorter than ``xtol``, two
+    rejections in a row, or ``maxiter`` iterations) on the closed-form 6x6 normal equations,
+    with one residual + Jacobian evaluation per iteration. It compiles to a fraction of
+    jaxopt's program and is cheap under ``jax.vmap``; same arguments and result as
+    :func:`solve_pose`.
+    """
+    weights = jnp.maximum(weights, 0.0).astype(jnp.float32)
+    if depth_weight is not None:
+        weights = jnp.broadcast_to(weights.reshape(weights.shape[0], -1), (weights.shape[0], 2)).reshape(-1)
+    total = jnp.maximum(jnp.sum(weights), 1.0)
+    sqrt_w = jnp.sqrt(weights / total)
+
+    def system(delta):
+        r, J = _terms(delta, T0, ref, cur, camera, depth_weight)
+        r, J = sqrt_w * r, sqrt_w[:, None] * J
+        return J.T @ J, J.T @ r, 0.5 * jnp.sum(r * r)
+
+    def cond(state):
+        it, _, _, _, _, _, inc, step_norm = state
+        return (it < maxiter) & (step_norm > xtol) & (inc < 8)
+
+    def body(state):
+        it, delta, H, g, loss, mu, inc, _ = state
+        step = -_cholesky_solve6(H + mu * jnp.eye(6, dtype=H.dtype), g)
+        H2, g2, loss2 = system(delta + step)
+        gain = (loss - loss2) / (0.5 * step @ (mu * step - g))
+        ok = gain > 0
+        big = jnp.float32(2.0 ** 32)
+        delta = jnp.where(ok, delta + step, delta)
+        H, g, loss = jnp.where(ok, H2, H), jnp.where(ok, g2, g), jnp.where(ok, loss2, loss)
+        mu = jnp.where(ok, mu * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3), jnp.minimum(mu * inc, big))
+        inc = jnp.where(ok, 2.0, jnp.minimum(2 * inc, big))
+        return it + 1, delta, H, g, loss, mu, inc, jnp.linalg.norm(step)
+
+    delta0 = jnp.zeros(6, jnp.float32)
+    H, g, loss = system(delta0)
+    state = (jnp.int32(0), delta0, H, g, loss, 1e-6 * jnp.max(jnp.diag(H)), jnp.float32(2.0), jnp.float32(jnp.inf))
+    it, delta, H, _, loss, _, _, _ = jax.lax.while_loop(cond, body, state)
+    ok = jnp.all(jnp.isfinite(delta))
+    delta = jnp.where(ok, delta, 0.0)
+    return Solution(geometry.exp(delta) @ T0, it, H * total, loss * total)
 
 
 def robust_scale(r, valid, max_abs: float = 256.0, bins: int = 1024):

@@ -12,7 +12,7 @@ from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
 from jaxvo import pyramid
 from jaxvo.residuals import reference_points
-from jaxvo.solvers import huber_weights, irls, robust_scale, solve_pose
+from jaxvo.solvers import _cholesky_solve6, huber_weights, irls, robust_scale, solve_pose, solve_pose_small
 
 CAM = DEFAULT.at_level(2)          # 160 x 120
 H, W = CAM.height, CAM.width
@@ -132,6 +132,35 @@ def test_solve_pose_recovers_known_motion(pair):
     sol2 = _solve(jnp.asarray(T_TRUE, jnp.float32), pts, cur, jnp.ones(pts.u.shape))
     et2, er2 = _errors(sol2.T)
     assert et2 < 1e-3 and er2 < 0.05
+
+
+def test_cholesky_solve6_matches_numpy():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(6, 6))
+    A = (A @ A.T + 0.1 * np.eye(6)).astype(np.float32)
+    b = rng.normal(size=6).astype(np.float32)
+    np.testing.assert_allclose(np.asarray(_cholesky_solve6(jnp.asarray(A), jnp.asarray(b))),
+                               np.linalg.solve(A.astype(np.float64), b), rtol=2e-3, atol=2e-4)
+
+
+@pytest.mark.parametrize("depth_weight", [None, 600.0])
+def test_solve_pose_small_follows_jaxopt(pair, depth_weight):
+    """The written-out LM takes jaxopt's iterates: same iteration count, same pose, also on a
+    54-pixel sample (the RANSAC hypothesis size) with some weights zero."""
+    ref, cur, pts = pair
+    rng = np.random.default_rng(1)
+    idx = jnp.asarray(rng.choice(np.flatnonzero(np.asarray(pts.valid)), 54, replace=False))
+    small_pts = type(pts)(*[x[idx] for x in pts])
+    for p, wts in ((pts, jnp.ones(pts.u.shape)), (small_pts, jnp.asarray(rng.random(54) > 0.2, jnp.float32))):
+        a = jax.jit(lambda T, p, w: solve_pose(T, p, cur, CAM, w, 8, depth_weight=depth_weight))(jnp.eye(4), p, wts)
+        b = jax.jit(lambda T, p, w: solve_pose_small(T, p, cur, CAM, w, 8, depth_weight=depth_weight))(
+            jnp.eye(4), p, wts)
+        assert int(a.iterations) == int(b.iterations) > 0
+        np.testing.assert_allclose(np.asarray(b.T), np.asarray(a.T), atol=2e-4)
+        np.testing.assert_allclose(np.asarray(b.hessian), np.asarray(a.hessian), rtol=2e-3,
+                                   atol=1e-3 * float(jnp.abs(a.hessian).max()))
+    et, er = _errors(jax.jit(lambda T: solve_pose_small(T, pts, cur, CAM, jnp.ones(pts.u.shape), 40).T)(jnp.eye(4)))
+    assert et < 1e-3 and er < 0.05, (et, er)
 
 
 def test_zero_weights_make_a_corrupted_region_irrelevant(pair):
