@@ -19,11 +19,11 @@ from typing import Optional
 import click
 import numpy as np
 
-from jaxvo.camera import DEFAULT, PRESETS
-from jaxvo.datasets import DatasetError, TumSequence
-from jaxvo.demo import SIZES, fmt, progress_bar, run_demo
+from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
+from jaxvo.datasets import DatasetError
+from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
-from jaxvo.runner import RunResult, load_config, resolve_camera, run_sequence
+from jaxvo.runner import RunResult, load_config, load_sequence, resolve_camera, run_sequence
 
 # run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
 __all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
@@ -86,6 +86,13 @@ def track_policy(gap: int = 1, lag: Optional[int] = None):
     return policy
 
 
+def _size_option(ctx, param, value):
+    try:
+        return parse_size(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e).split(": ", 1)[-1]) from None
+
+
 # ----------------------------------------------------------------------------- the group
 
 @click.group(help=f"""jaxvo: robust dense RGB-D visual odometry (classic, Huber and RANSAC) in JAX.
@@ -109,10 +116,14 @@ def main():
 
 @main.command("run", help=f"""Track a sequence and write its trajectory.
 
-SEQUENCE_DIR is a folder in the TUM RGB-D layout (rgb.txt, depth.txt, rgb/, depth/ with
-16-bit depth PNGs = metres x 5000, optional groundtruth.txt); TUM, Bonn RGB-D Dynamic and
-jaxvo synthetic sequences all work. Colour and depth are associated by nearest timestamp
-(at most --max-dt seconds apart). The trajectory file is written and flushed one line per
+SEQUENCE_DIR is an RGB-D sequence folder: the TUM RGB-D layout (rgb.txt, depth.txt, rgb/,
+depth/ with 16-bit depth PNGs = metres x 5000, optional groundtruth.txt; TUM, Bonn RGB-D
+Dynamic, ETH3D SLAM with its calibration.txt, jaxvo synthetic), ICL-NUIM (associations.txt)
+or Redwood / Open3D (color/ and depth/ folders, depth in millimetres). Colour and depth are
+associated by nearest timestamp (at most --max-dt seconds apart). Image size comes from the
+images; intrinsics from --camera / --fx ..., else the folder's calibration file, else the
+preset for the folder name (scaled to the image size: a guess, printed as such). Depth whose
+median is outside 0.2-10 m stops the run with the --depth-scale to pass. The trajectory file is written and flushed one line per
 frame while the run goes on, the first frame at the identity, so an interrupted run (Ctrl-C,
 or a killed process) keeps every finished frame; Ctrl-C prints the summary of what was done.
 
@@ -152,8 +163,13 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
                    "inlier) at full image size into this folder, named by the REFERENCE frame's timestamp "
                    "(the mask lives on the reference image's pixels), e.g. 1311868164.363181.png.")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: the folder's info.json, else from the folder name: "
-                   "freiburg1/2/3 -> fr1/fr2/fr3, rgbd_bonn_* -> bonn, otherwise default (525, 525, 319.5, 239.5)]")
+              help="Intrinsics preset (640x480). [default: the folder's calibration.txt (ETH3D), "
+                   "camera_intrinsic.json (Open3D) or info.json (jaxvo), else from the folder name: "
+                   "freiburg1/2/3 -> fr1/fr2/fr3, rgbd_bonn_* -> bonn, otherwise default (525, 525, 319.5, 239.5), "
+                   "scaled to the image size]")
+@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
+                   "millimetres (Open3D, RealSense, Redwood). [default: the layout's]")
 @click.option("--fx", type=float, default=None, help="Override the focal length fx (pixels).")
 @click.option("--fy", type=float, default=None, help="Override the focal length fy (pixels).")
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
@@ -170,20 +186,19 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
-            finest_level, save_masks, camera_preset, fx, fy, cx, cy, max_dt, keyframe_gap, keyframe_lag,
-            no_progress):
+            finest_level, save_masks, camera_preset, depth_scale, fx, fy, cx, cy, max_dt, keyframe_gap,
+            keyframe_lag, no_progress):
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
     policy = track_policy(keyframe_gap, keyframe_lag)
-    if not Path(sequence_dir).exists():
-        raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
-    cam = resolve_camera(sequence_dir, camera_preset, fx, fy, cx, cy)
-    seq = TumSequence(sequence_dir, camera=cam, max_dt=max_dt, start=start, max_frames=max_frames)
+    seq = load_sequence(sequence_dir, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
+                        start=start, max_frames=max_frames)
     if len(seq) < 2:
         raise DatasetError(f"{sequence_dir}: only {len(seq)} frame(s) to use, need at least 2")
     seq.check(1)                 # a bad first image is reported before compiling
     gt = seq.groundtruth         # and so is ground truth that does not cover the frames
-    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}", err=True)
+    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
+               f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}", err=True)
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     try:
         res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar, policy=policy)
@@ -337,8 +352,9 @@ work on it unchanged.
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frames", type=click.IntRange(min=2), default=300, show_default=True, help="Number of frames (30 Hz).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene, textures and motions.")
-@click.option("--size", type=click.Choice(list(SIZES)), default="640x480", show_default=True,
-              help="Image size; intrinsics are the default 525/319.5/239.5 camera scaled to it.")
+@click.option("--size", callback=_size_option, default="640x480", show_default=True,
+              help="Image size WIDTHxHEIGHT (e.g. 640x480, 320x240, 424x240, 848x480); intrinsics are the "
+                   "default 525/319.5/239.5 camera scaled to it (jaxvo.camera.camera_for_size).")
 @click.option("--sensor/--no-sensor", default=False, show_default=True,
               help="Kinect-like sensor effects (depth noise ~Z^2, quantisation, missing depth at edges and "
                    "beyond 4 m, intensity noise, exposure changes).")
@@ -347,7 +363,7 @@ work on it unchanged.
 def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress):
     from jaxvo.synthetic import SensorModel, generate
 
-    cam = DEFAULT.at_level(SIZES[size])
+    cam = camera_for_size(DEFAULT, *size)
     pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
         out = generate(name, out_dir, frames=frames, seed=seed, camera=cam,
@@ -356,7 +372,7 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress):
     finally:
         if pbar is not None:
             pbar.close()
-    click.echo(f"wrote {frames} frames of {name} ({size}, seed {seed}) to {out}")
+    click.echo(f"wrote {frames} frames of {name} ({size[0]}x{size[1]}, seed {seed}) to {out}")
 
 
 @main.command("augment", help=f"""Composite synthetic moving persons into a real static sequence.
@@ -439,7 +455,8 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
 @click.option("--sequence", "seq_name", type=click.Choice(["seq0", "seq1", "seq2", "seq3", "handheld-fast"]),
               default="seq2", show_default=True,
               help="Which synthetic motion (see jaxvo synth --help); seq2 is the paper's pan-tilt scene.")
-@click.option("--size", type=click.Choice(list(SIZES)), default="320x240", show_default=True, help="Image size.")
+@click.option("--size", callback=_size_option, default="320x240", show_default=True,
+              help="Image size WIDTHxHEIGHT.")
 @click.option("--sensor/--no-sensor", default=True, show_default=True, help="Kinect-like sensor effects.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
@@ -488,25 +505,25 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: as for 'jaxvo run': info.json, else from the folder name]")
+              help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
+                   "the folder name]")
+@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
 @click.option("--max-dt", type=float, default=0.02, show_default=True,
               help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
-            no_labels, seed, camera_preset, max_dt, no_progress):
+            no_labels, seed, camera_preset, depth_scale, max_dt, no_progress):
     from jaxvo.mapping import build_map, render_preview, write_ply
     from jaxvo.odometry import Config
     from jaxvo.trajectory import read_tum_trajectory
 
     if use_masks and no_labels:
         raise _Fail("--use-masks and --no-labels exclude each other")
-    if not Path(sequence_dir).exists():
-        raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
-    cam = resolve_camera(sequence_dir, camera_preset)
-    seq = TumSequence(sequence_dir, camera=cam, max_dt=max_dt, max_frames=max_frames)
+    seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
     t_traj, T_traj = read_tum_trajectory(traj)
     if len(t_traj) == 0:
         raise DatasetError(f"{traj}: no poses in the trajectory file")

@@ -17,10 +17,10 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from jaxvo.camera import PRESETS, Camera, camera_for_sequence
-from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.camera import PRESETS, Camera
+from jaxvo.datasets import DatasetError, TumSequence, open_sequence
 
-__all__ = ["RunResult", "run_sequence", "load_config", "resolve_camera", "outlier_mask", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "load_config", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
 
 
 def load_config(path=None, **overrides):
@@ -57,34 +57,27 @@ def load_config(path=None, **overrides):
     return cfg
 
 
-def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
-    """Intrinsics for a sequence folder.
-
-    ``preset`` (fr1, fr2, fr3, bonn, default) if given; else the ``camera`` entry of the
-    folder's ``info.json`` (written by ``jaxvo synth`` / ``jaxvo augment``); else chosen from
-    the folder name (freiburg1/2/3, rgbd_bonn_*, otherwise the default 525/319.5/239.5 camera).
-    ``fx, fy, cx, cy`` (pixels) override single values.
+def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
+                  **kwargs) -> TumSequence:
+    """Open a sequence folder of any supported layout (:func:`jaxvo.datasets.open_sequence`) with the
+    intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
+    folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
+    (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
+    the reader. ``seq.camera_source`` says where the intrinsics came from.
     """
-    seq_dir = Path(seq_dir)
-    cam = None
+    seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None, **kwargs)
     if preset is not None:
-        cam = PRESETS[preset]
-    else:
-        info = seq_dir / "info.json"
-        if info.is_file():
-            try:
-                c = json.loads(info.read_text()).get("camera")
-                if isinstance(c, dict):
-                    cam = Camera(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]),
-                                 int(c.get("width", 640)), int(c.get("height", 480)))
-            except (ValueError, KeyError, TypeError, AttributeError) as e:
-                raise DatasetError(f"{info}: malformed camera entry ({e})") from None
-        if cam is None:
-            cam = camera_for_sequence(seq_dir.resolve().name)
+        seq.camera_source = f"preset {preset}"
     over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
     if over:
-        cam = dataclasses.replace(cam, **over)
-    return cam
+        seq.camera = dataclasses.replace(seq.camera, **over)
+        seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
+    return seq
+
+
+def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
+    """The intrinsics :func:`load_sequence` gives a folder (see there)."""
+    return load_sequence(seq_dir, preset, fx, fy, cx, cy, max_frames=1).camera
 
 
 def outlier_mask(est, width: int, height: int, valid_too: bool = False):
