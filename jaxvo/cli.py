@@ -170,6 +170,11 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
                    "millimetres (Open3D, RealSense, Redwood). [default: the layout's]")
+@click.option("--mask-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder of user masks, one 8-bit PNG per colour frame named like the colour image (or "
+                   "<timestamp>.png): nonzero = the pixel may be used, 0 = ignore it (e.g. a person detector's "
+                   "people). A frame's mask applies where it is the reference; frames without one use every "
+                   "pixel. jaxvo's own outlier decision still runs on the pixels left.")
 @click.option("--fx", type=float, default=None, help="Override the focal length fx (pixels).")
 @click.option("--fy", type=float, default=None, help="Override the focal length fy (pixels).")
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
@@ -186,13 +191,13 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
-            finest_level, save_masks, camera_preset, depth_scale, fx, fy, cx, cy, max_dt, keyframe_gap,
+            finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
             keyframe_lag, no_progress):
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
     policy = track_policy(keyframe_gap, keyframe_lag)
     seq = load_sequence(sequence_dir, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
-                        start=start, max_frames=max_frames)
+                        start=start, max_frames=max_frames, mask_dir=mask_dir)
     if len(seq) < 2:
         raise DatasetError(f"{sequence_dir}: only {len(seq)} frame(s) to use, need at least 2")
     seq.check(1)                 # a bad first image is reported before compiling

@@ -373,6 +373,10 @@ class TumSequence:
       bonn: treat ground truth as Bonn marker poses and convert it to camera poses;
         None = decide from the folder name (``rgbd_bonn_*``).
       gt_slack: see :attr:`groundtruth` (seconds, default 0.1).
+      mask_dir: optional folder of user masks, one 8-bit PNG per colour frame (nonzero = the
+        pixel may be used, e.g. 0 on a detector's people), named like the colour image or
+        ``<timestamp>.png``; fills :attr:`jaxvo.frame.Frame.mask` (frames without one: None, all
+        pixels usable).
 
     Attributes:
       camera, timestamps ((N,) float64 rgb timestamps of the used frames, seconds),
@@ -385,7 +389,7 @@ class TumSequence:
 
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
                  depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
-                 bonn: Optional[bool] = None, gt_slack: float = 0.1):
+                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None):
         self.path = Path(path)
         if not self.path.exists():
             raise DatasetError(f"{self.path}: sequence folder does not exist")
@@ -420,6 +424,8 @@ class TumSequence:
             for f in p:
                 if not f.is_file():
                     raise DatasetError(f"{f}: file not found (listed in {lst})")
+        self.mask_dir = None if mask_dir is None else Path(mask_dir)
+        self.mask_paths = self._match_masks() if mask_dir is not None else [None] * len(self.rgb_paths)
         if camera is not None:
             self.camera, self.camera_source = camera, "given"
         else:
@@ -445,6 +451,29 @@ class TumSequence:
                 f"{t_rgb[0]:.6f} .. {t_rgb[-1]:.6f}, depth.txt {t_dep[0]:.6f} .. {t_dep[-1]:.6f})")
         return (t_rgb[ia], t_dep[ib], [self.path / f_rgb[i] for i in ia], [self.path / f_dep[j] for j in ib],
                 ("rgb.txt", "depth.txt"))
+
+    def _match_masks(self) -> List[Optional[Path]]:
+        """Per used frame, the PNG in ``mask_dir`` with the colour image's file name (stem), else the one
+        named ``<timestamp>.png`` nearest the frame's timestamp (within max_dt); None where there is none
+        (every pixel usable). DatasetError when the folder is missing or matches no frame."""
+        d = self.mask_dir
+        if not d.is_dir():
+            raise DatasetError(f"{d}: mask folder does not exist")
+        files = {p.stem: p for p in d.iterdir() if p.suffix.lower() == ".png"}
+        stamped = {}
+        for stem, p in files.items():
+            try:
+                stamped[float(stem)] = p
+            except ValueError:
+                pass
+        st = np.asarray(sorted(stamped), np.float64)
+        ia, ib = associate(self.timestamps, st, self.max_dt) if st.size else (np.zeros(0, int), np.zeros(0, int))
+        by_time = {int(i): stamped[float(st[j])] for i, j in zip(ia, ib)}
+        out = [files.get(rp.stem, by_time.get(i)) for i, rp in enumerate(self.rgb_paths)]
+        if not any(p is not None for p in out):
+            raise DatasetError(f"{d}: no mask PNG matches a frame (expected the colour images' file names, e.g. "
+                               f"{self.rgb_paths[0].stem}.png, or <timestamp>.png)")
+        return out
 
     def _image_size(self, i: int) -> Tuple[int, int]:
         """(width, height) of frame i's colour image, read from the file."""
@@ -503,7 +532,8 @@ class TumSequence:
 
     def frame(self, i: int) -> Frame:
         """Read and return frame ``i`` (negative indices allowed) as a :class:`jaxvo.frame.Frame`:
-        intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid).
+        intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid), mask (H, W) bool
+        from ``mask_dir`` or None.
 
         Raises DatasetError naming the file for undecodable images, non-16-bit depth, size
         mismatches (also with the camera's width/height) and depth without any valid pixel.
@@ -515,8 +545,19 @@ class TumSequence:
             raise DatasetError(f"{self.rgb_paths[i]}: image size {w}x{h} does not match the camera "
                                f"intrinsics' {self.camera.width}x{self.camera.height} (camera from {self.camera_source}; "
                                f"pass intrinsics for this size: --camera / --fx --fy --cx --cy)")
+        mask = None
+        mp = self.mask_paths[i]
+        if mp is not None:
+            import cv2
+            mask = cv2.imread(str(mp), cv2.IMREAD_GRAYSCALE)
+            if mask is None:
+                raise DatasetError(f"{mp}: mask image does not decode (corrupt or not an image file)")
+            if mask.shape != depth.shape:
+                raise DatasetError(f"{mp}: mask size {mask.shape[1]}x{mask.shape[0]} does not match the image "
+                                   f"size {w}x{h}")
         try:
-            fr = make_frame(rgb, depth, self.depth_scale, color_order="bgr", source=str(self.depth_paths[i]))
+            fr = make_frame(rgb, depth, self.depth_scale, color_order="bgr", source=str(self.depth_paths[i]),
+                            mask=mask)
         except ValueError as e:
             raise DatasetError(str(e)) from None
         if not self._depth_checked:

@@ -155,3 +155,40 @@ def test_depth_scale_check_names_the_scale_to_pass(median_m, scale, explicit, su
     msg = str(e.value)
     assert msg.startswith("f.png:") and "\n" not in msg
     assert f"--depth-scale {suggest}" in msg and 0.2 <= raw / suggest <= 10
+
+
+def test_mask_dir_fills_frame_mask_and_changes_the_trajectory(seq424, tmp_path):
+    """User masks (nonzero = usable), here 0 on the synthetic person, named like the colour images:
+    the reader fills Frame.mask, and `jaxvo run --mask-dir` gives another trajectory than without."""
+    ref = TumSequence(seq424)
+    md = tmp_path / "usable"
+    md.mkdir()
+    true = {}
+    for rp, (t, mp) in zip(ref.rgb_paths, zip(*_true_masks(seq424))):
+        person = cv2.imread(str(mp), cv2.IMREAD_GRAYSCALE) > 127
+        true[rp.stem] = person
+        cv2.imwrite(str(md / f"{rp.stem}.png"), np.where(person, 0, 255).astype(np.uint8))
+    seq = open_sequence(seq424, mask_dir=md)
+    f = seq.frame(1)
+    assert f.mask.dtype == bool and f.mask.shape == (H, W)
+    np.testing.assert_array_equal(f.mask, ~true[seq.rgb_paths[1].stem])
+    assert open_sequence(seq424).frame(1).mask is None
+
+    r0 = _run(seq424, tmp_path / "plain.txt")
+    r1 = _run(seq424, tmp_path / "masked.txt", "--mask-dir", str(md))
+    assert r0.exit_code == 0 and r1.exit_code == 0, (r0.output, r1.output)
+    P0 = read_tum_trajectory(tmp_path / "plain.txt")[1]
+    P1 = read_tum_trajectory(tmp_path / "masked.txt")[1]
+    assert np.abs(P1[1:, :3, 3] - P0[1:, :3, 3]).max() > 1e-5
+
+    bad = tmp_path / "nomatch"
+    bad.mkdir()
+    cv2.imwrite(str(bad / "zzz.png"), np.zeros((H, W), np.uint8))
+    r = _run(seq424, tmp_path / "x.txt", "--mask-dir", str(bad))
+    assert r.exit_code == 2 and r.output.startswith("error:") and "no mask PNG matches" in r.output
+
+
+def _true_masks(seq_dir):
+    from jaxvo.evaluation import true_masks
+
+    return true_masks(seq_dir)
