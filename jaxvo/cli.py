@@ -23,7 +23,7 @@ from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
 from jaxvo.datasets import DatasetError
 from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
-from jaxvo.runner import RunResult, load_config, load_sequence, resolve_camera, run_sequence
+from jaxvo.runner import RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence
 
 # run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
 __all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
@@ -72,12 +72,17 @@ def _handle_errors(f):
 
 # ----------------------------------------------------------------------------- helpers
 
-def track_policy(gap: int = 1, lag: Optional[int] = None):
+def track_policy(gap: Optional[int] = 1, lag: Optional[int] = None, base=None):
     """:class:`jaxvo.odometry.TrackConfig` from the CLI's --keyframe-gap / --keyframe-lag (lag
-    defaults to gap // 2); a bad combination raises ValueError naming the options."""
-    from jaxvo.odometry import TrackConfig
+    defaults to gap // 2) on top of ``base`` (default TrackConfig()); ``gap=None`` keeps base's
+    gap (and lag, unless given). A bad combination raises ValueError naming the options."""
+    from jaxvo.config import TrackConfig
 
-    policy = TrackConfig(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
+    base = TrackConfig() if base is None else base
+    if gap is None:
+        policy = base if lag is None else base._replace(lag=int(lag))
+    else:
+        policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
     try:
         policy.validate()
     except ValueError:
@@ -123,9 +128,14 @@ or Redwood / Open3D (color/ and depth/ folders, depth in millimetres). Colour an
 associated by nearest timestamp (at most --max-dt seconds apart). Image size comes from the
 images; intrinsics from --camera / --fx ..., else the folder's calibration file, else the
 preset for the folder name (scaled to the image size: a guess, printed as such). Depth whose
-median is outside 0.2-10 m stops the run with the --depth-scale to pass. The trajectory file is written and flushed one line per
-frame while the run goes on, the first frame at the identity, so an interrupted run (Ctrl-C,
-or a killed process) keeps every finished frame; Ctrl-C prints the summary of what was done.
+median is outside 0.2-10 m (or under 0.7 m with the layout's default scale: millimetres read
+as 1/5000 m) stops the run with the --depth-scale to pass.
+
+The trajectory file starts with '#' lines naming jaxvo's version, the method, seed,
+full config and keyframe policy (JSON) and the reader's settings (jaxvo run SEQ --config
+TRAJ reruns it bitwise); it is written and flushed one line per frame while the run goes
+on, the first frame at the identity, so an interrupted run (Ctrl-C, or a killed process)
+keeps every finished frame; Ctrl-C prints the summary of what was done.
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
 inliers or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
@@ -149,8 +159,10 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="Index of the first (associated) frame to use.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
-              help="JSON object of jaxvo.odometry.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, "
-                   "\"thresh_lum\": 30, \"blocks\": [4, 2, 1, 1]}); the options below override it.")
+              help="JSON object of jaxvo.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, \"thresh_lum\": 30, "
+                   "\"blocks\": [4, 2, 1, 1]}), or a trajectory file written by jaxvo run: its '#' header gives "
+                   "the config, seed, keyframe policy, frames, depth scale and intrinsics, so the run is "
+                   "reproduced bitwise. Options given on the command line override it.")
 @click.option("--thresh-lum", type=float, default=None,
               help="Inlier threshold on |luminance residual|, 0-255 units. [default: 30]")
 @click.option("--thresh-depth", type=float, default=None,
@@ -193,9 +205,33 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
             keyframe_lag, no_progress):
+    from jaxvo.config import TrackConfig
+
+    settings = read_run_settings(config_file) if config_file is not None else {}
+    ctx = click.get_current_context()
+
+    def default(name):  # not given on the command line: a trajectory header's value may take its place
+        return ctx.get_parameter_source(name) == click.core.ParameterSource.DEFAULT
+
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
-    policy = track_policy(keyframe_gap, keyframe_lag)
+    if "seed" in settings and default("seed"):
+        seed = int(settings["seed"])
+    try:
+        base = TrackConfig.from_json(settings["track"]) if "track" in settings else None
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{config_file}: '# track:' header: {e}") from None
+    policy = track_policy(None if default("keyframe_gap") and base is not None else keyframe_gap, keyframe_lag, base)
+    sq = settings.get("sequence") or {}
+    if sq:
+        start = sq.get("start", start) if default("start") else start
+        max_frames = sq.get("frames", max_frames) if default("max_frames") else max_frames
+        max_dt = sq.get("max_dt", max_dt) if default("max_dt") else max_dt
+        depth_scale = sq.get("depth_scale") if depth_scale is None else depth_scale
+        mask_dir = sq.get("mask_dir") if mask_dir is None else mask_dir
+        c = sq.get("camera")
+        if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4 and isinstance(c, dict):
+            fx, fy, cx, cy = c.get("fx"), c.get("fy"), c.get("cx"), c.get("cy")
     seq = load_sequence(sequence_dir, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
                         start=start, max_frames=max_frames, mask_dir=mask_dir)
     if len(seq) < 2:

@@ -416,6 +416,7 @@ class TumSequence:
         if start >= n_assoc:
             raise DatasetError(f"{self.path}: start={start} is past the end ({n_assoc} associated frames)")
         self.n_associated = int(n_assoc)
+        self.start = int(start)
         self.timestamps = np.array(t_rgb[start:stop], np.float64)
         self.depth_timestamps = np.array(t_dep[start:stop], np.float64)
         self.rgb_paths = list(rgb_paths[start:stop])

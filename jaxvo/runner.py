@@ -20,41 +20,85 @@ import numpy as np
 from jaxvo.camera import PRESETS, Camera
 from jaxvo.datasets import DatasetError, TumSequence, open_sequence
 
-__all__ = ["RunResult", "run_sequence", "load_config", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
+
+
+def read_run_settings(path) -> dict:
+    """The settings stored in ``path``: a JSON object of Config fields (-> ``{"config": {...}}``), or a
+    trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
+    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method`` and ``sequence`` (the
+    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir).
+    Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{p}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{p}: cannot read config file ({e})") from None
+    if text.lstrip().startswith("#"):
+        found = {}
+        for line in text.splitlines():
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].strip().partition(": ")
+            if sep and key in ("config", "track", "sequence", "seed"):
+                try:
+                    found[key] = json.loads(value)
+                except json.JSONDecodeError as e:
+                    raise DatasetError(f"{p}: malformed '# {key}:' header line ({e.msg})") from None
+        if "config" not in found:
+            raise DatasetError(f"{p}: no '# config: {{...}}' header line (not a trajectory written by jaxvo run)")
+        return found
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno}) nor a jaxvo trajectory file") \
+            from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{p}: expected a JSON object of Config fields")
+    return {"config": data}
 
 
 def load_config(path=None, **overrides):
-    """A :class:`jaxvo.odometry.Config` from a JSON file of Config fields plus overrides (None = keep).
+    """A :class:`jaxvo.config.Config` from a JSON file of Config fields, or from the header of a
+    trajectory file written by ``jaxvo run`` (:func:`read_run_settings`), plus overrides (None = keep).
 
-    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value raise
-    ValueError / DatasetError naming the file.
+    Unknown fields, a malformed file or an invalid value raise ValueError / DatasetError naming the file.
     """
     from jaxvo.config import Config
 
-    fields = {f.name for f in dataclasses.fields(Config)}
-    values = {}
-    if path is not None:
-        p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError:
-            raise DatasetError(f"{p}: config file not found") from None
-        except json.JSONDecodeError as e:
-            raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno})") from None
-        if not isinstance(data, dict):
-            raise DatasetError(f"{p}: expected a JSON object of Config fields")
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise DatasetError(f"{p}: unknown Config field(s) {', '.join(unknown)} "
-                               f"(known: {', '.join(sorted(fields))})")
-        values.update({k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    values = dict(read_run_settings(path)["config"]) if path is not None else {}
     values.update({k: v for k, v in overrides.items() if v is not None})
-    cfg = Config(**values)
     try:
-        cfg.validate()
-    except ValueError as e:
-        raise ValueError(f"{path}: {e}" if path is not None else str(e)) from None
-    return cfg
+        return Config.from_json(values)
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{path}: {e}" if path is not None else str(e)) from None
+
+
+def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> List[str]:
+    """The ``#`` comment lines that start a trajectory file of :func:`run_sequence`: jaxvo's version,
+    method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`) and
+    the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("jaxvo")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        v = "unknown"
+    lines = [f"# jaxvo {v}: jaxvo run SEQUENCE --config THIS_FILE reproduces this trajectory",
+             f"# method: {config.method}", f"# seed: {int(seed)}", f"# config: {config.to_json()}",
+             f"# track: {policy.to_json()}"]
+    if seq is not None:
+        c = seq.camera
+        info = {"path": str(seq.path), "reader": type(seq).__name__, "start": int(seq.start), "frames": len(seq),
+                "depth_scale": seq.depth_scale, "max_dt": seq.max_dt,
+                "camera": {"fx": float(c.fx), "fy": float(c.fy), "cx": float(c.cx), "cy": float(c.cy),
+                           "width": c.width, "height": c.height},
+                "mask_dir": None if seq.mask_dir is None else str(seq.mask_dir)}
+        lines.append(f"# sequence: {json.dumps(info)}")
+    return lines
 
 
 def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
@@ -151,7 +195,11 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
             mask_dir.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise DatasetError(f"{mask_dir}: cannot create mask folder ({e.strerror or e})") from None
-    writer = TrajectoryWriter(out) if out is not None else None
+    from jaxvo.config import TrackConfig
+    from jaxvo.trajectory import HEADER
+
+    header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
+    writer = TrajectoryWriter(out, header=header) if out is not None else None
     poses = [np.eye(4)]
     ratios: List[float] = []
     valids: List[bool] = []
