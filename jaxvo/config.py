@@ -7,9 +7,11 @@ hyperparameter sweep compiled once.
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Any, NamedTuple, Optional, Tuple
 
 import jax
+import numpy as np
 
 __all__ = ["METHODS", "Config", "TrackConfig"]
 
@@ -107,6 +109,16 @@ class Config:
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
+
+    def to_json(self) -> str:
+        """Every field as one line of JSON (tuples as lists); :meth:`from_json` reads it back exactly."""
+        return _to_json(self, [f.name for f in dataclasses.fields(self)])
+
+    @classmethod
+    def from_json(cls, text) -> "Config":
+        """A validated Config from :meth:`to_json`'s output (a JSON string or an already parsed dict).
+        Missing fields keep their defaults; unknown fields or invalid values raise ValueError."""
+        return _from_json(cls, text, [f.name for f in dataclasses.fields(cls)])
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -207,6 +219,15 @@ class TrackConfig(NamedTuple):
         return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
                       "max_step": 0.1, "max_step_deg": 10.0, **changes})
 
+    def to_json(self) -> str:
+        """Every field as one line of JSON; :meth:`from_json` reads it back exactly."""
+        return _to_json(self, list(self._fields))
+
+    @classmethod
+    def from_json(cls, text) -> "TrackConfig":
+        """A validated TrackConfig from :meth:`to_json`'s output (JSON string or dict)."""
+        return _from_json(cls, text, list(cls._fields))
+
     def validate(self) -> None:
         if int(self.max_gap) < 1:
             raise ValueError(f"track config: max_gap must be >= 1, got {self.max_gap}")
@@ -221,3 +242,34 @@ class TrackConfig(NamedTuple):
             raise ValueError("track config: switch_baseline and switch_deg must be > 0")
         if not 0 <= int(self.history) <= 6:
             raise ValueError(f"track config: history must lie in [0, 6], got {self.history}")
+
+
+def _plain(v):
+    """A field value as plain JSON data: tuples -> lists, NumPy / JAX scalars -> int / float / bool."""
+    if isinstance(v, (tuple, list)):
+        return [_plain(x) for x in v]
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    try:
+        a = np.asarray(v)
+    except Exception:  # a tracer
+        raise ValueError(f"cannot write a traced or non-numeric value {v!r} to JSON") from None
+    if a.ndim != 0:
+        raise ValueError(f"cannot write a non-scalar field value of shape {a.shape} to JSON")
+    return a.item()
+
+
+def _to_json(obj, names) -> str:
+    return json.dumps({n: _plain(getattr(obj, n)) for n in names})
+
+
+def _from_json(cls, text, names):
+    data = json.loads(text) if isinstance(text, (str, bytes)) else text
+    if not isinstance(data, dict):
+        raise ValueError(f"{cls.__name__}.from_json: expected a JSON object of fields, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} field(s) {', '.join(unknown)} (known: {', '.join(sorted(names))})")
+    obj = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    obj.validate()
+    return obj

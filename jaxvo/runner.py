@@ -1,0 +1,250 @@
+"""Run a sequence through the tracker: the library side of ``jaxvo run``.
+
+:func:`run_sequence` tracks a :class:`jaxvo.datasets.TumSequence` with
+:func:`jaxvo.odometry.track`, writes the trajectory as it goes and returns a
+:class:`RunResult`; :func:`resolve_camera` finds a folder's intrinsics and
+:func:`load_config` reads a :class:`jaxvo.config.Config` from a JSON file.
+Bad input raises :class:`jaxvo.datasets.DatasetError` / ``ValueError`` with a
+one-line message naming the file.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Callable, List, Optional
+
+import numpy as np
+
+from jaxvo.camera import PRESETS, Camera
+from jaxvo.datasets import DatasetError, TumSequence, open_sequence
+
+__all__ = ["RunResult", "run_sequence", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
+
+
+def read_run_settings(path) -> dict:
+    """The settings stored in ``path``: a JSON object of Config fields (-> ``{"config": {...}}``), or a
+    trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
+    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method`` and ``sequence`` (the
+    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir).
+    Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{p}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{p}: cannot read config file ({e})") from None
+    if text.lstrip().startswith("#"):
+        found = {}
+        for line in text.splitlines():
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].strip().partition(": ")
+            if sep and key in ("config", "track", "sequence", "seed"):
+                try:
+                    found[key] = json.loads(value)
+                except json.JSONDecodeError as e:
+                    raise DatasetError(f"{p}: malformed '# {key}:' header line ({e.msg})") from None
+        if "config" not in found:
+            raise DatasetError(f"{p}: no '# config: {{...}}' header line (not a trajectory written by jaxvo run)")
+        return found
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno}) nor a jaxvo trajectory file") \
+            from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{p}: expected a JSON object of Config fields")
+    return {"config": data}
+
+
+def load_config(path=None, **overrides):
+    """A :class:`jaxvo.config.Config` from a JSON file of Config fields, or from the header of a
+    trajectory file written by ``jaxvo run`` (:func:`read_run_settings`), plus overrides (None = keep).
+
+    Unknown fields, a malformed file or an invalid value raise ValueError / DatasetError naming the file.
+    """
+    from jaxvo.config import Config
+
+    values = dict(read_run_settings(path)["config"]) if path is not None else {}
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return Config.from_json(values)
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{path}: {e}" if path is not None else str(e)) from None
+
+
+def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> List[str]:
+    """The ``#`` comment lines that start a trajectory file of :func:`run_sequence`: jaxvo's version,
+    method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`) and
+    the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("jaxvo")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        v = "unknown"
+    lines = [f"# jaxvo {v}: jaxvo run SEQUENCE --config THIS_FILE reproduces this trajectory",
+             f"# method: {config.method}", f"# seed: {int(seed)}", f"# config: {config.to_json()}",
+             f"# track: {policy.to_json()}"]
+    if seq is not None:
+        c = seq.camera
+        info = {"path": str(seq.path), "reader": type(seq).__name__, "start": int(seq.start), "frames": len(seq),
+                "depth_scale": seq.depth_scale, "max_dt": seq.max_dt,
+                "camera": {"fx": float(c.fx), "fy": float(c.fy), "cx": float(c.cx), "cy": float(c.cy),
+                           "width": c.width, "height": c.height},
+                "mask_dir": None if seq.mask_dir is None else str(seq.mask_dir)}
+        lines.append(f"# sequence: {json.dumps(info)}")
+    return lines
+
+
+def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
+                  **kwargs) -> TumSequence:
+    """Open a sequence folder of any supported layout (:func:`jaxvo.datasets.open_sequence`) with the
+    intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
+    folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
+    (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
+    the reader. ``seq.camera_source`` says where the intrinsics came from.
+    """
+    seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None, **kwargs)
+    if preset is not None:
+        seq.camera_source = f"preset {preset}"
+    over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
+    if over:
+        seq.camera = dataclasses.replace(seq.camera, **over)
+        seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
+    return seq
+
+
+def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
+    """The intrinsics :func:`load_sequence` gives a folder (see there)."""
+    return load_sequence(seq_dir, preset, fx, fy, cx, cy, max_frames=1).camera
+
+
+def outlier_mask(est, width: int, height: int, valid_too: bool = False):
+    """Full-size (H, W) bool outlier mask (valid & ~inlier) of an estimate (and the valid mask)."""
+    import cv2
+
+    inl = np.asarray(est.inlier_mask, bool)
+    val = np.asarray(est.valid_mask, bool)
+    out = val & ~inl
+    if out.shape != (height, width):
+        out = cv2.resize(out.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+        val = cv2.resize(val.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return (out, val) if valid_too else out
+
+
+def stamp_name(t: float) -> str:
+    return f"{float(t):.6f}"
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What :func:`run_sequence` did.
+
+    stamps (n,) s and poses (n, 4, 4) T_world_cam of the frames written (frame 0 at the start pose);
+    inlier_ratio, valid (n-1,) per finished pair; compile_s: wall time until the first pair was
+    done (reading, compiling and running it); fps: pairs per second after the first pair (NaN
+    with fewer than 2 pairs); interrupted: ended by Ctrl-C.
+    """
+    method: str
+    stamps: np.ndarray
+    poses: np.ndarray
+    inlier_ratio: np.ndarray
+    valid: np.ndarray
+    compile_s: float
+    fps: float
+    wall_s: float
+    interrupted: bool = False
+
+    @property
+    def pairs(self) -> int:
+        return int(self.inlier_ratio.size)
+
+    @property
+    def failures(self) -> int:
+        return int(np.sum(~self.valid))
+
+
+def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
+                 on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
+    """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
+    :class:`jaxvo.odometry.TrackConfig`; default ``TrackConfig()``), so results equal the library's,
+    writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
+    estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
+    timestamp: the mask lives on the reference image's pixels; with keyframes the last
+    estimate against a reference, the longest baseline, is the one kept).
+    ``on_pair(step)`` is called with each :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the run early
+    (``interrupted=True``) keeping everything written so far.
+    """
+    import cv2
+    import jax
+
+    from jaxvo.odometry import track
+    from jaxvo.trajectory import TrajectoryWriter
+
+    stamps = np.asarray(seq.timestamps, np.float64)
+    W, H = seq.camera.width, seq.camera.height
+    mask_dir = None
+    if save_masks is not None:
+        mask_dir = Path(save_masks)
+        try:
+            mask_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise DatasetError(f"{mask_dir}: cannot create mask folder ({e.strerror or e})") from None
+    from jaxvo.config import TrackConfig
+    from jaxvo.trajectory import HEADER
+
+    header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
+    writer = TrajectoryWriter(out, header=header) if out is not None else None
+    poses = [np.eye(4)]
+    ratios: List[float] = []
+    valids: List[bool] = []
+    times: List[float] = []
+    t0 = time.perf_counter()
+
+    def callback(step):
+        i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
+        ratios.append(float(est.inlier_ratio))
+        valids.append(bool(step.valid))
+        poses.append(np.asarray(pose, np.float64))
+        if writer is not None:
+            writer.write(stamps[i + 1], pose)
+        if mask_dir is not None:
+            m = outlier_mask(est, W, H)
+            if step.static_mask is not None:   # what the segmentation marked dynamic is an outlier too
+                m = m | ~step.static_mask
+            p = mask_dir / f"{stamp_name(stamps[ref])}.png"
+            if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
+                raise OSError(f"{p}: could not write mask image")
+        if on_pair is not None:
+            on_pair(step)
+        times.append(time.perf_counter())
+        if pbar is not None:
+            pbar.update(1)
+            pbar.set_postfix(inliers=f"{ratios[-1]:.2f}", refresh=False)
+
+    interrupted = False
+    frames_it = seq.prefetch(2)
+    frames = (f for _, f in frames_it)
+    try:
+        if writer is not None:
+            writer.open()
+            writer.write_first(stamps[0])
+        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=callback, policy=policy)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        frames.close()
+        frames_it.close()
+        if writer is not None:
+            writer.close()
+    t_end = time.perf_counter()
+    n = len(poses)
+    compile_s = (times[0] - t0) if times else float("nan")
+    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else float("nan")
+    return RunResult(config.method, stamps[:n].copy(), np.stack(poses), np.asarray(ratios),
+                     np.asarray(valids, bool), compile_s, fps, t_end - t0, interrupted)
