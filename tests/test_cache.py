@@ -41,7 +41,7 @@ def test_enable_unwritable_folder_is_refused(tmp_path):
 
 def _run(seq: Path, out: Path, env):
     cmd = [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--method", "classic",
-           "--max-frames", "4", "--no-progress"]
+           "--max-frames", "4", "--frame-to-frame", "--no-progress"]
     return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
 
 
