@@ -22,6 +22,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -47,6 +48,8 @@ def parse_args(argv=None):
                     help="comma-separated keyframe max_gap values (lag = gap // 2; 1 = frame to frame) "
                          "and/or 'default' (jaxvo's default: segmented keyframes)")
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames per sequence")
+    ap.add_argument("--config", default=None,
+                    help="JSON object of jaxvo.Config fields applied to every method (e.g. '{\"ransac_finest\": 1}')")
     ap.add_argument("--seeds", default="0", help="comma-separated PRNG key seeds for ransac (default 0)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "keyframes.md"),
                     help="markdown output (JSON next to it)")
@@ -102,6 +105,11 @@ def main(argv=None) -> Path:
     methods = [m for m in common.parse_methods(args.methods) if not common.is_peer(m)]
     seeds = _ints(args.seeds, "seeds")
     policies = _policies(args.gaps)
+    try:
+        base = json.loads(args.config) if args.config else {}
+        Config.from_json({**base, "method": "ransac"})
+    except ValueError as e:
+        raise SystemExit(f"--config: {e}")
     rows = []
     for path in paths:
         seq = common.open_sequence(path, args.max_frames)
@@ -111,7 +119,8 @@ def main(argv=None) -> Path:
             for gap, pname, policy in policies:
                 for seed in (seeds if method == "ransac" else seeds[:1]):
                     t0 = time.perf_counter()
-                    tr = track(frames, seq.camera, Config(method=method), jax.random.key(seed), policy=policy)
+                    cfg = Config.from_json({**base, "method": method})
+                    tr = track(frames, seq.camera, cfg, jax.random.key(seed), policy=policy)
                     ms = 1000 * (time.perf_counter() - t0) / max(len(frames) - 1, 1)
                     rows.append(_row(seq, method, pname, tr.relative, tr.valid, ms, gap,
                                      seed if method == "ransac" else None))

@@ -27,6 +27,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -240,45 +241,46 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     from jaxvo.pyramid import build_pyramid
     from jaxvo.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose
     from jaxvo.residuals import reference_points, residuals, select_points
-    from jaxvo.solvers import irls, solve_pose
+    from jaxvo.solvers import irls, solve_pose, solve_pose_small
 
     cfg = config
     dw = cfg.depth_weight if cfg.terms == "rgbd" else None
     hdw = cfg.depth_weight if cfg.hypothesis_terms == "rgbd" else None
 
-    def stage_functions(lv, lc, stride, blk):
-        """The jitted stages of level lv, built once per (set, level) so each compiles once."""
-        def points(rl):
+    def stage_functions(stride, blk):
+        """The jitted stages of one level (the camera ``lc`` an argument), built once per level so each
+        compiles once for both sets."""
+        def points(rl, lc):
             sp = (select_points(rl, lc, stride) if cfg.score_selection == "gradient"
                   else reference_points(rl, lc, stride))
             return select_points(rl, lc, blk), sp
 
-        def solve(T, pts, cl):
+        def solve(T, pts, cl, lc):
             if cfg.method == "classic":
                 return solve_pose(T, pts, cl, lc, pts.weight, cfg.max_iterations, depth_weight=dw).T
             return irls(T, pts, cl, lc, pts.weight, cfg.huber_k, cfg.irls_rounds, cfg.irls_iterations,
                         depth_weight=dw).T
 
-        def prior(T, pts, cl):
-            return solve_pose(T, pts, cl, lc, pts.weight, cfg.max_iterations, depth_weight=dw).T
+        def prior(T, pts, cl, lc):
+            return solve_pose_small(T, pts, cl, lc, pts.weight, cfg.max_iterations, depth_weight=dw).T
 
-        def ransac(T, rl, cl, sp, kk):
+        def ransac(T, rl, cl, sp, kk, lc):
             return ransac_level(T, rl, cl, lc, sp, kk, p=cfg.p, w=cfg.w, thresh_lum=cfg.thresh_lum,
                                 thresh_depth=cfg.thresh_depth, early_exit_ratio=cfg.early_exit_ratio,
                                 n=cfg.n_points, radius=cfg.patch_radius, max_hypotheses=cfg.max_hypotheses,
                                 batch_size=cfg.batch_size, hypothesis_iterations=cfg.hypothesis_iterations,
                                 depth_weight=hdw, scoring=cfg.scoring).T
 
-        def sample(rl, kk):
+        def sample(rl, kk, lc):  # lc unused: every stage takes the camera
             return sample_patches(kk, rl, cfg.n_points, cfg.batch_size, cfg.patch_radius)
 
-        def fit(T, rl, cl, pu, pv):
+        def fit(T, rl, cl, pu, pv, lc):
             return jax.vmap(lambda a, b: fit_hypothesis(T, rl, cl, lc, a, b, cfg.hypothesis_iterations, hdw))(pu, pv)
 
-        def score(Ts, sp, cl):
+        def score(Ts, sp, cl, lc):
             return jax.vmap(lambda X: score_pose(X, sp, cl, lc, cfg.thresh_lum, cfg.thresh_depth, cfg.scoring))(Ts)
 
-        def refine(T, pts, cl):
+        def refine(T, pts, cl, lc):
             for _ in range(cfg.refine_rounds):
                 mask = inliers(residuals(T, pts, cl, lc), cfg.thresh_lum, cfg.thresh_depth)
                 consensus = jnp.where(mask, pts.weight, 0.0)
@@ -293,11 +295,13 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                                                  ("score", score), ("refine", refine))}
 
     rows = []
+    fns: dict = {}
     for set_name, (seq, frames, pairs) in sets.items():
         cam = seq.camera
         L = _levels(cfg, cam.width, cam.height)
-        pyr = jax.jit(lambda i, d: build_pyramid(i, d, L, cfg.max_depth, jnp.ones_like(i)))
-        fns: dict = {}
+        if ("pyramid", L) not in fns:
+            fns["pyramid", L] = jax.jit(lambda i, d: build_pyramid(i, d, L, cfg.max_depth, jnp.ones_like(i)))
+        pyr = fns["pyramid", L]
         acc: dict = {}
 
         def add(level, stage, seconds):
@@ -322,29 +326,30 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                 lc = cam.at_level(lv)
                 rl, cl = rp[lv], cp[lv]
                 hh, ww = rl.depth.shape
-                if lv not in fns:
+                if (lv, hh, ww) not in fns:
                     stride = max(1, int(np.ceil(np.sqrt(hh * ww / cfg.max_score_pixels))))
-                    fns[lv] = stage_functions(lv, lc, stride, _block(cfg, lv))
-                f = fns[lv]
+                    fns[lv, hh, ww] = stage_functions(stride, _block(cfg, lv))
+                f = {name: functools.partial(fn, lc=lc) for name, fn in fns[lv, hh, ww].items()}
                 add(lv, "points", _timed(f["points"], rl, repeats=repeats))
                 pts, sp = f["points"](rl)
                 if cfg.method != "ransac":
                     add(lv, "solve", _timed(f["solve"], T, pts, cl, repeats=repeats))
                     T = f["solve"](T, pts, cl)
                     continue
-                if cfg.prior_candidate == "refined":
-                    add(lv, "prior", _timed(f["prior"], T, pts, cl, repeats=repeats))
-                    T = f["prior"](T, pts, cl)
-                lkey = jax.random.fold_in(pk, lv)
-                t_rs = _timed(f["ransac"], T, rl, cl, sp, lkey, repeats=repeats)
-                pu, pv = f["sample"](rl, lkey)
-                t_fit = _timed(f["fit"], T, rl, cl, pu, pv, repeats=repeats)
-                t_score = _timed(f["score"], f["fit"](T, rl, cl, pu, pv), sp, cl, repeats=repeats)
-                batches = int(np.ceil(hyps[lv] / cfg.batch_size))
-                add(lv, "hypotheses", batches * t_fit)
-                add(lv, "scoring", batches * t_score)
-                add(lv, "ransac other", max(t_rs - batches * (t_fit + t_score), 0.0))
-                T = f["ransac"](T, rl, cl, sp, lkey)
+                if lv >= cfg.ransac_finest:
+                    if cfg.prior_candidate == "refined":
+                        add(lv, "prior", _timed(f["prior"], T, pts, cl, repeats=repeats))
+                        T = f["prior"](T, pts, cl)
+                    lkey = jax.random.fold_in(pk, lv)
+                    t_rs = _timed(f["ransac"], T, rl, cl, sp, lkey, repeats=repeats)
+                    pu, pv = f["sample"](rl, lkey)
+                    t_fit = _timed(f["fit"], T, rl, cl, pu, pv, repeats=repeats)
+                    t_score = _timed(f["score"], f["fit"](T, rl, cl, pu, pv), sp, cl, repeats=repeats)
+                    batches = int(np.ceil(hyps[lv] / cfg.batch_size))
+                    add(lv, "hypotheses", batches * t_fit)
+                    add(lv, "scoring", batches * t_score)
+                    add(lv, "ransac other", max(t_rs - batches * (t_fit + t_score), 0.0))
+                    T = f["ransac"](T, rl, cl, sp, lkey)
                 add(lv, "refinement", _timed(f["refine"], T, pts, cl, repeats=repeats))
                 T = f["refine"](T, pts, cl)
             dev = float(np.max(np.abs(np.asarray(T) - np.asarray(est.T_cur_ref))))

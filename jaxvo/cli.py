@@ -90,7 +90,7 @@ def _compilation_cache(f):
 
 
 def _device() -> str:
-    """The device the estimator runs on, e.g. 'cpu:0' or 'gpu:0 (NVIDIA H100 80GB HBM3)' (the first of jax.devices())."""
+    """The device the estimator runs on (the first of jax.devices()), e.g. 'cpu:0' or 'gpu:0 (NVIDIA H100 ...)'."""
     import jax
 
     d = jax.devices()[0]

@@ -43,6 +43,9 @@ class Config:
       consensus refinement with consensus_weights="huber").
     irls_iterations: *static*, LM iterations per re-weighting round.
     refine_rounds: *static*, RANSAC consensus -> refine rounds per level.
+    ransac_finest: *static*, the finest level on which RANSAC (the prior fit, the hypotheses)
+      runs; each finer level only refines on the consensus set of the pose carried up from the
+      coarser level (0: RANSAC on every level, the paper).
     blocks: *static*, per level (index 0 = finest): the refinement uses one reference
       pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
       pixel). The current image is always sampled at that level's full resolution.
@@ -87,6 +90,7 @@ class Config:
     irls_rounds: int = 2
     irls_iterations: int = 2
     refine_rounds: int = 1
+    ransac_finest: int = 0
     blocks: Tuple[int, ...] = (4, 2, 1, 1)
     max_score_pixels: int = 10000
     depth_weight: Any = 600.0
@@ -133,6 +137,8 @@ class Config:
                 raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
         if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
             raise ValueError(f"config.finest_level={self.finest_level} must lie in [0, num_levels)")
+        if self.ransac_finest < 0:
+            raise ValueError(f"config.ransac_finest must be >= 0, got {self.ransac_finest}")
         if any(int(b) < 1 for b in self.blocks):
             raise ValueError(f"config.blocks must be >= 1, got {self.blocks}")
 
@@ -144,8 +150,8 @@ _CHOICES = {"terms": ("photometric", "rgbd"), "hypothesis_terms": ("photometric"
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
-           "max_score_pixels", "terms", "hypothesis_terms", "scoring", "score_selection", "consensus_weights",
-           "prior_candidate"]
+           "ransac_finest", "max_score_pixels", "terms", "hypothesis_terms", "scoring", "score_selection",
+           "consensus_weights", "prior_candidate"]
 jax.tree_util.register_dataclass(
     Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
 

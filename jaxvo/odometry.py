@@ -33,7 +33,7 @@ from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, num_levels_for
 from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
-from jaxvo.solvers import irls, solve_pose
+from jaxvo.solvers import irls, solve_pose, solve_pose_small
 
 __all__ = ["Config", "MotionEstimate", "estimate_motion", "Odometry", "track", "Track", "TrackConfig", "TrackStep", "METHODS",
            "trace_count"]
@@ -114,18 +114,19 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
                 score_pts = select_points(ref_l, cam, score_stride)
             else:
                 score_pts = reference_points(ref_l, cam, score_stride)
-            if config.prior_candidate == "refined":
-                T = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
-            rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
-                              p=config.p, w=config.w, thresh_lum=config.thresh_lum,
-                              thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
-                              n=config.n_points, radius=config.patch_radius,
-                              max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
-                              hypothesis_iterations=config.hypothesis_iterations,
-                              depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
-                              scoring=config.scoring)
-            hyps[level] = rs.hypotheses
-            T = rs.T
+            if level >= config.ransac_finest:  # finer levels: refine the carried-up consensus only
+                if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
+                    T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
+                rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
+                                  p=config.p, w=config.w, thresh_lum=config.thresh_lum,
+                                  thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
+                                  n=config.n_points, radius=config.patch_radius,
+                                  max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
+                                  hypothesis_iterations=config.hypothesis_iterations,
+                                  depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
+                                  scoring=config.scoring)
+                hyps[level] = rs.hypotheses
+                T = rs.T
             it = jnp.int32(0)
             for _ in range(config.refine_rounds):
                 mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
