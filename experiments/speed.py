@@ -574,6 +574,11 @@ def main(argv=None) -> Path:
     peer_cols = list(dict.fromkeys(p["method"] for p in prows))
 
     lines = common.provenance_md("Speed per 640x480 frame pair", __file__, argv)
+    load = common.machine_info()["load_avg_1min"]
+    if load > 0.5:
+        lines += [f"Other processes ran beside this one (load average {load:.2f} at the start on "
+                  f"{common.machine_info()['cpu_affinity']} usable CPUs), so absolute times vary from run to run: "
+                  "compare the ratios to the peers measured in the same run.", ""]
     lines += [
         f"Pairs: {len(static[2])} static ({static[0].name}) and {len(dynamic[2])} dynamic ({dynamic[0].name}) "
         f"consecutive pairs spread over each sequence, decoded into memory first; each timed {args.repeats}x. "
@@ -611,7 +616,8 @@ def main(argv=None) -> Path:
                   f"The first {args.default_frames} consecutive frames of each sequence, decoded into memory; "
                   "per-frame wall time of `Odometry.add` (the estimate against the keyframe, the pose chained "
                   "on the host, the segmentation's updates) after a warm-up pass over the same frames. "
-                  "`first s`: the warm-up's first two frames (compilation included). `map update` / "
+                  "`first s`: the warm-up's first two frames (compilation of what the sections above did not "
+                  "compile yet, e.g. the segmentation). `map update` / "
                   "`new reference map`: time in the segmentation's two jitted updates per frame (blocked "
                   "on); `switches`: reference changes. Ratio: against the OpenCV rgb median of the same set's "
                   "pairs above.", ""]

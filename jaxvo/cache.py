@@ -20,7 +20,9 @@ entries; JAX writes an entry only if its file is absent, and an entry that canno
 (e.g. one that another process is still writing, or one truncated by a killed process) is
 reported by JAX as a warning and compiled afresh. JAX's writes are not atomic (jax 0.10:
 ``pathlib.Path.write_bytes`` without a rename), so such a truncated entry stays until the
-folder is deleted; deleting the folder is always safe.
+folder is deleted; deleting the folder is always safe. ``tests/test_cache.py`` starts two
+``jaxvo run`` processes together on an empty folder, then a third that must find every
+compiled program there.
 """
 from __future__ import annotations
 
