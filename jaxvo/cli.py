@@ -72,15 +72,19 @@ def _handle_errors(f):
 
 # ----------------------------------------------------------------------------- helpers
 
-def track_policy(gap: Optional[int] = 1, lag: Optional[int] = None, base=None):
-    """:class:`jaxvo.odometry.TrackConfig` from the CLI's --keyframe-gap / --keyframe-lag (lag
-    defaults to gap // 2) on top of ``base`` (default TrackConfig()); ``gap=None`` keeps base's
-    gap (and lag, unless given). A bad combination raises ValueError naming the options."""
+def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None):
+    """:class:`jaxvo.config.TrackConfig` from the CLI's --keyframe-gap / --keyframe-lag on top of
+    ``base`` (default: the library's TrackConfig()): gap None keeps base's gap (and lag, unless
+    given); gap 1 is the paper's frame-to-frame chaining (:meth:`TrackConfig.frame_to_frame`);
+    another gap replaces base's, with lag default gap // 2. A bad combination raises ValueError
+    naming the options."""
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
     if gap is None:
         policy = base if lag is None else base._replace(lag=int(lag))
+    elif int(gap) == 1:
+        policy = TrackConfig.frame_to_frame(lag=0 if lag is None else int(lag))
     else:
         policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
     try:
@@ -194,13 +198,13 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
 @click.option("--max-dt", type=float, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
-@click.option("--keyframe-gap", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
               help="Each frame is estimated against a reference (keyframe) up to this many frames back; "
-                   "1 = frame to frame, the paper's chaining. 6 is much better where people walk "
-                   "through the picture (see jaxvo.TrackConfig).")
+                   "1 = frame to frame, the paper's chaining (TrackConfig.frame_to_frame()). [default: the "
+                   "library's jaxvo.TrackConfig(), as jaxvo.track uses it]")
 @click.option("--keyframe-lag", type=click.IntRange(min=0), default=None,
               help="After the reference moves it is this many frames behind the current one "
-                   "[default: half of --keyframe-gap].")
+                   "[default: half of --keyframe-gap, or the library's].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
@@ -222,7 +226,7 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
         base = TrackConfig.from_json(settings["track"]) if "track" in settings else None
     except (ValueError, TypeError) as e:
         raise DatasetError(f"{config_file}: '# track:' header: {e}") from None
-    policy = track_policy(None if default("keyframe_gap") and base is not None else keyframe_gap, keyframe_lag, base)
+    policy = track_policy(keyframe_gap, keyframe_lag, base)
     sq = settings.get("sequence") or {}
     if sq:
         start = sq.get("start", start) if default("start") else start
