@@ -105,10 +105,11 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
         mt, mpaths = true_masks(seq_dir)
         masks_true = [load_mask(p) for p in mpaths]
         cover = np.array([m.mean() for m in masks_true])
-        # the dynamic frame shown in the overlay: most moving pixels (a pair's reference frame)
-        show = int(np.argmax(cover[:-1])) if len(cover) > 1 else 0
+        # the dynamic frame shown in the overlay: the reference frame with most moving pixels
+        # (with keyframes not every frame serves as reference; the first method's choice is kept)
         results = {}
         shown = {}
+        show = [None]
         for method in methods:
             config = Config(method=method)
             counts = np.zeros(4, np.int64)
@@ -120,7 +121,9 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                     pred, val = pred | ~step.static_mask, val | ~step.static_mask
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
-                if step.reference == show:
+                if method == methods[0] and (show[0] is None or cover[step.reference] >= cover[show[0]]):
+                    show[0] = step.reference
+                if step.reference == show[0]:
                     shown[method] = (~pred, val)
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")
@@ -169,6 +172,7 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                                   ylabel="translational RPE [mm/frame]",
                                   title=f"{seq_name}: translational error per frame"),
         out / "translational_error.png")
+    show = show[0] if show[0] is not None else 0
     if shown:
         import matplotlib.pyplot as plt
         fr = seq.frame(show)
