@@ -81,10 +81,12 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
-    if frame_to_frame:
-        base = TrackConfig.frame_to_frame()
+    if frame_to_frame or (gap == 1 and not lag):
+        base, gap = TrackConfig.frame_to_frame(), None
     if gap is None:
         policy = base if lag is None else base._replace(lag=int(lag))
+    elif int(gap) == 1:
+        policy = TrackConfig.frame_to_frame(lag=0 if lag is None else int(lag))
     else:
         policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
     if segment is not None:

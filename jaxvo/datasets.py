@@ -12,7 +12,7 @@
 * ICL-NUIM (TUM-compatible release): ``associations.txt`` ("t depth/N.png t rgb/N.png" per line,
   either order), depth value / 5000, ground truth ``groundtruth.txt`` or ``*.gt.freiburg``:
   :class:`IclNuimSequence`;
-* Redwood / Open3D: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` folders of numbered
+* Redwood / Open3D: ``color/`` (or ``image/``) and ``depth/`` folders of numbered
   images taken in name order at 30 Hz, depth in millimetres (value / 1000), optional
   ``camera_intrinsic.json`` (Open3D's PinholeCameraIntrinsic): :class:`RedwoodSequence`.
 
@@ -706,14 +706,14 @@ class IclNuimSequence(TumSequence):
 
 
 class RedwoodSequence(TumSequence):
-    """A Redwood / Open3D RGB-D folder: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` hold
+    """A Redwood / Open3D RGB-D folder: ``color/`` (or ``image/``) and ``depth/`` hold
     numbered images paired in name order; there are no timestamps, so frame k is at k / fps
     seconds (30 Hz). Depth defaults to millimetres (depth_scale 1000). An optional
     ``groundtruth.txt`` in TUM format (with those timestamps) is read like TUM's.
     Arguments as :class:`TumSequence`, plus ``fps``."""
     LAYOUT = "Redwood"
     DEPTH_SCALE = 1000.0
-    COLOR_DIRS = ("color", "image", "rgb")
+    COLOR_DIRS = ("color", "image")
 
     def __init__(self, path, *args, fps: float = 30.0, **kwargs):
         self.fps = float(fps)
@@ -723,7 +723,7 @@ class RedwoodSequence(TumSequence):
         exts = {".png", ".jpg", ".jpeg"}
         col = next((self.path / c for c in self.COLOR_DIRS if (self.path / c).is_dir()), None)
         if col is None or not (self.path / "depth").is_dir():
-            raise DatasetError(f"{self.path}: a Redwood folder needs color/ (or image/, rgb/) and depth/ folders")
+            raise DatasetError(f"{self.path}: a Redwood folder needs color/ (or image/) and depth/ folders")
         rgb = sorted(p for p in col.iterdir() if p.suffix.lower() in exts)
         dep = sorted(p for p in (self.path / "depth").iterdir() if p.suffix.lower() == ".png")
         if not rgb or len(rgb) != len(dep):
@@ -736,7 +736,7 @@ class RedwoodSequence(TumSequence):
 def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[float] = None, **kwargs) -> TumSequence:
     """Open an RGB-D sequence folder with the reader its content calls for: ``rgb.txt`` + ``depth.txt``
     (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
-    :class:`IclNuimSequence`; ``color/`` (or ``image/``, ``rgb/``) + ``depth/`` folders (Redwood) ->
+    :class:`IclNuimSequence`; ``color/`` (or ``image/``) + ``depth/`` folders (Redwood) ->
     :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's) and ``kwargs``
     (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else.
     """
@@ -745,8 +745,8 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[f
         raise DatasetError(f"{p}: sequence folder does not exist")
     if not p.is_dir():
         raise DatasetError(f"{p}: not a folder (expected an RGB-D sequence folder)")
-    if _is_sequence_dir(p):
-        cls = TumSequence
+    if (p / "rgb.txt").is_file() or (p / "depth.txt").is_file():
+        cls = TumSequence            # (which names the one that is missing)
     elif (p / "associations.txt").is_file():
         cls = IclNuimSequence
     elif (p / "depth").is_dir() and any((p / c).is_dir() for c in RedwoodSequence.COLOR_DIRS):

@@ -172,13 +172,15 @@ class RunResult:
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
     """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
-    :class:`jaxvo.odometry.TrackConfig`; default ``TrackConfig()``), so results equal the library's,
-    writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
-    estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
-    timestamp: the mask lives on the reference image's pixels; with keyframes the last
-    estimate against a reference, the longest baseline, is the one kept).
-    ``on_pair(step)`` is called with each :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the run early
-    (``interrupted=True``) keeping everything written so far.
+    :class:`jaxvo.config.TrackConfig`; default the library's TrackConfig()) and the key
+    ``jax.random.key(seed)``, so results equal the library's. The trajectory goes to ``out`` as
+    it grows (first frame at identity), after the ``#`` header of :func:`run_header` (version,
+    method, seed, config, policy, reader settings). Optionally each estimate's outlier mask goes
+    into ``save_masks`` (PNG named by the *reference* frame's timestamp: the mask lives on the
+    reference image's pixels; with keyframes the last estimate against a reference, the longest
+    baseline, is the one kept). ``on_pair(step)`` is called with each
+    :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
+    run early (``interrupted=True``) keeping everything written so far.
     """
     import cv2
     import jax
