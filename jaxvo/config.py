@@ -11,6 +11,8 @@ from typing import Any, NamedTuple, Optional, Tuple
 
 import jax
 
+from jaxvo.validation import check_fields, check_names, choice, flag, integer, positive_ints, real
+
 __all__ = ["METHODS", "Config", "TrackConfig"]
 
 METHODS = ("classic", "huber", "ransac")
@@ -105,30 +107,60 @@ class Config:
                    prior_candidate="raw",
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
+    @classmethod
+    def from_dict(cls, values, base: Optional["Config"] = None) -> "Config":
+        """``base`` (default ``Config()``) with the fields in ``values`` (e.g. parsed JSON) changed,
+        lists turned into tuples (``blocks``), and validated. Unknown names and bad values raise
+        ValueError naming them."""
+        if not isinstance(values, dict):
+            raise ValueError(f"expected an object of Config fields, got {type(values).__name__}")
+        changes = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+        cfg = (cls() if base is None else base).replace(**changes)
+        cfg.validate()
+        return cfg
+
     def replace(self, **changes) -> "Config":
+        check_names(changes, _RULES, "Config")
         return dataclasses.replace(self, **changes)
 
     def validate(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
-        for name, allowed in _CHOICES.items():
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"config.{name} must be one of {', '.join(map(repr, allowed))}, "
-                                 f"got {getattr(self, name)!r}")
-        for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
-                     "irls_rounds", "irls_iterations", "refine_rounds", "max_score_pixels"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
-        if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
-            raise ValueError(f"config.finest_level={self.finest_level} must lie in [0, num_levels)")
-        if any(int(b) < 1 for b in self.blocks):
-            raise ValueError(f"config.blocks must be >= 1, got {self.blocks}")
+        """Raise ValueError naming the first field whose value breaks its rule in ``_RULES``
+        (type, finiteness, range), e.g. ``Config.p must be a number in (0, 1), got 1.5``."""
+        check_fields(self, _RULES, "Config")
 
 
-# the string-valued static fields and their allowed values
-_CHOICES = {"terms": ("photometric", "rgbd"), "hypothesis_terms": ("photometric", "rgbd"),
-            "prior_candidate": ("raw", "refined"), "consensus_weights": ("binary", "huber"),
-            "score_selection": ("grid", "gradient"), "scoring": ("count", "msac")}
+# One rule per field (jaxvo.validation): a new field needs a line here, or validate() fails.
+_RULES = {
+    "method": choice(*METHODS),
+    "p": real(0, 1, lo_open=True, hi_open=True),
+    "w": real(0, 1, hi_open=True),
+    "thresh_lum": real(0, lo_open=True),
+    "thresh_depth": real(0, lo_open=True),
+    "early_exit_ratio": real(0, 1, lo_open=True),
+    "huber_k": real(0, lo_open=True),
+    "max_depth": real(0, lo_open=True),
+    "min_inlier_ratio": real(0, 1),
+    "n_points": integer(1),
+    "patch_radius": integer(0),
+    "max_hypotheses": integer(1),
+    "batch_size": integer(1),
+    "num_levels": integer(1, 16, none_means="halve down to about 80x60"),
+    "finest_level": integer(0, "num_levels", hi_open=True),
+    "max_iterations": integer(1),
+    "hypothesis_iterations": integer(1),
+    "irls_rounds": integer(1),
+    "irls_iterations": integer(1),
+    "refine_rounds": integer(1),
+    "blocks": positive_ints(),
+    "max_score_pixels": integer(1),
+    "depth_weight": real(0, lo_open=True),
+    "terms": choice("photometric", "rgbd"),
+    "hypothesis_terms": choice("photometric", "rgbd"),
+    "scoring": choice("count", "msac"),
+    "score_selection": choice("grid", "gradient"),
+    "consensus_weights": choice("binary", "huber"),
+    "prior_candidate": choice("raw", "refined"),
+}
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
@@ -186,10 +218,14 @@ class TrackConfig(NamedTuple):
         return cls(max_gap=max_gap, lag=max_gap // 2 if lag is None else lag, **changes)
 
     def validate(self) -> None:
-        if int(self.max_gap) < 1:
-            raise ValueError(f"track config: max_gap must be >= 1, got {self.max_gap}")
-        if not 0 <= int(self.lag) < int(self.max_gap):
-            raise ValueError(f"track config: lag must lie in [0, max_gap), got lag={self.lag}, "
-                             f"max_gap={self.max_gap}")
-        if not (self.max_step > 0 and self.max_step_deg > 0):
-            raise ValueError("track config: max_step and max_step_deg must be > 0")
+        """Raise ValueError naming the first field that breaks its rule (see ``_TRACK_RULES``)."""
+        check_fields(self, _TRACK_RULES, "TrackConfig")
+
+
+_TRACK_RULES = {
+    "max_gap": integer(1),
+    "lag": integer(0, "max_gap", hi_open=True),
+    "hold_invalid": flag(),
+    "max_step": real(0, lo_open=True),
+    "max_step_deg": real(0, 180, lo_open=True),
+}

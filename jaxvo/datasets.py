@@ -381,7 +381,11 @@ class TumSequence:
             raise ValueError(f"start must be >= 0, got {start}")
         if max_frames is not None and max_frames < 1:
             raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
+        if camera is not None and not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a jaxvo.Camera, got {camera!r}"
+                             + (f" (use jaxvo.camera.PRESETS[{camera!r}])" if isinstance(camera, str) else ""))
         self.camera = camera if camera is not None else camera_for_sequence(self.name)
+        self.camera.validate()
         self.max_dt = float(max_dt)
         self.depth_scale = float(depth_scale)
         self.is_bonn = is_bonn_sequence(self.path) if bonn is None else bool(bonn)

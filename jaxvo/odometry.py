@@ -169,6 +169,32 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def _checked_settings(config: Optional[Config], camera: Camera) -> Config:
+    """The config (default ``Config()``) after checking it and the camera (ValueError naming the field)."""
+    config = Config() if config is None else config
+    if not isinstance(config, Config):
+        raise ValueError(f"config must be a jaxvo.Config, got {type(config).__name__}")
+    config.validate()
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera must be a jaxvo.Camera, got {type(camera).__name__} "
+                         f"(e.g. jaxvo.camera.PRESETS['fr2'])")
+    camera.validate()
+    return config
+
+
+def _checked_key(key):
+    """``key`` (default ``jax.random.key(0)``) if it is a jax.random key, else ValueError with a hint."""
+    if key is None:
+        return jax.random.key(0)
+    dtype = getattr(key, "dtype", None)
+    if dtype is not None and (jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
+                              or (dtype == jnp.uint32 and tuple(key.shape) == (2,))):
+        return key
+    shown = repr(key) if isinstance(key, (int, float, str)) else type(key).__name__
+    raise ValueError(f"key must be a jax.random key, got {shown}; pass jax.random.key(seed), "
+                     f"e.g. jax.random.key({key if isinstance(key, int) else 0})")
+
+
 def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config] = None, key=None,
                     init=None) -> MotionEstimate:
     """Estimate the rigid motion between two RGB-D frames.
@@ -190,12 +216,7 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
-    config = Config() if config is None else config
-    if not isinstance(config, Config):
-        raise ValueError(f"config must be a jaxvo.Config, got {type(config).__name__}")
-    config.validate()
-    if not isinstance(camera, Camera):
-        raise ValueError(f"camera must be a jaxvo.Camera, got {type(camera).__name__}")
+    config = _checked_settings(config, camera)
     validate_pair(ref, cur, camera)
     h, w = ref.intensity.shape
     L = _levels(config, w, h)
@@ -203,8 +224,7 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
         raise ValueError(f"config.finest_level={config.finest_level} but the pyramid has only {L} levels")
     if (w >> (L - 1)) < 8 or (h >> (L - 1)) < 8:
         raise ValueError(f"{L} pyramid levels are too many for {w}x{h} images")
-    if key is None:
-        key = jax.random.key(0)
+    key = _checked_key(key)
     T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
     if T0.shape != (4, 4):
         raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
@@ -268,10 +288,12 @@ def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = No
     the host before the next frame is dispatched, because the next reference and initial
     pose depend on it (measured: overlapping the two saved < 2 % per frame).
     """
-    config = Config() if config is None else config
+    config = _checked_settings(config, camera)
     policy = TrackConfig() if policy is None else policy
+    if not isinstance(policy, TrackConfig):
+        raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(policy).__name__}")
     policy.validate()
-    key = jax.random.key(0) if key is None else key
+    key = _checked_key(key)
     pose = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
     poses, ratios, valids, refs = [pose], [], [], []
     it = iter(frames)
