@@ -24,6 +24,8 @@ from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, TrackConfig, 
 from jaxvo.datasets import DatasetError, TumSequence
 from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.metrics import ate, mask_scores, rpe
+from jaxvo.runner import RunResult, load_config, resolve_camera, run_sequence
+from jaxvo.evaluation import evaluate, trajectory_errors
 
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
@@ -31,5 +33,6 @@ __all__ = [
     "estimate_motion", "track",
     "DatasetError", "TumSequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
     "rpe", "ate", "mask_scores",
+    "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "trajectory_errors",
 ]
 __version__ = "0.1.0"

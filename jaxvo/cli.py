@@ -1,4 +1,7 @@
-"""The ``jaxvo`` command line: ``run``, ``eval``, ``synth``, ``augment``, ``demo``.
+"""The ``jaxvo`` command line: ``run``, ``eval``, ``synth``, ``augment``, ``demo``, ``map``.
+
+Argument parsing and printing only: the work is done by the library (:mod:`jaxvo.runner`,
+:mod:`jaxvo.evaluation`, :mod:`jaxvo.demo`, :mod:`jaxvo.synthetic`, :mod:`jaxvo.mapping`).
 
 Every command reports bad input (missing or malformed files, undecodable images, a
 depth image that is not 16-bit, no colour/depth association, ground truth that does
@@ -7,24 +10,23 @@ exit code 2, never a traceback.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
-import math
-import os
-import shutil
 import sys
-import time
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
+from typing import Optional
 
 import click
 import numpy as np
 
-from jaxvo.camera import DEFAULT, PRESETS, Camera, camera_for_sequence
-from jaxvo.datasets import DatasetError, TumSequence, is_bonn_sequence, read_file_list, read_groundtruth
+from jaxvo.camera import DEFAULT, PRESETS
+from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.demo import SIZES, fmt, progress_bar, run_demo
+from jaxvo.evaluation import evaluate, trajectory_errors
+from jaxvo.runner import RunResult, load_config, resolve_camera, run_sequence
 
-__all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate"]
+# run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
+__all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
 
 CONVENTIONS = """\b
 Conventions:
@@ -40,9 +42,6 @@ Conventions:
     a 1-second delta, as in TUM evaluate_rpe.py); ATE: RMSE in m after a rigid
     least-squares (Horn/Umeyama) alignment of the estimate to the ground truth.
   * bad input gives one line 'error: ...' on stderr and exit code 2."""
-
-SIZES = {"640x480": 0, "320x240": 1, "160x120": 2}
-
 
 # ----------------------------------------------------------------------------- errors
 
@@ -85,226 +84,6 @@ def track_policy(gap: int = 1, lag: Optional[int] = None):
         raise ValueError(f"--keyframe-lag {policy.lag} must be smaller than --keyframe-gap {policy.max_gap}") \
             from None
     return policy
-
-
-def load_config(path=None, **overrides):
-    """A :class:`jaxvo.odometry.Config` from a JSON file of Config fields plus overrides (None = keep).
-
-    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value raise
-    ValueError / DatasetError naming the file.
-    """
-    from jaxvo.odometry import Config
-
-    fields = {f.name for f in dataclasses.fields(Config)}
-    values = {}
-    if path is not None:
-        p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError:
-            raise DatasetError(f"{p}: config file not found") from None
-        except json.JSONDecodeError as e:
-            raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno})") from None
-        if not isinstance(data, dict):
-            raise DatasetError(f"{p}: expected a JSON object of Config fields")
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise DatasetError(f"{p}: unknown Config field(s) {', '.join(unknown)} "
-                               f"(known: {', '.join(sorted(fields))})")
-        values.update({k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    cfg = Config(**values)
-    try:
-        cfg.validate()
-    except ValueError as e:
-        raise ValueError(f"{path}: {e}" if path is not None else str(e)) from None
-    return cfg
-
-
-def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
-    """Intrinsics for a sequence folder.
-
-    ``preset`` (fr1, fr2, fr3, bonn, default) if given; else the ``camera`` entry of the
-    folder's ``info.json`` (written by ``jaxvo synth`` / ``jaxvo augment``); else chosen from
-    the folder name (freiburg1/2/3, rgbd_bonn_*, otherwise the default 525/319.5/239.5 camera).
-    ``fx, fy, cx, cy`` (pixels) override single values.
-    """
-    seq_dir = Path(seq_dir)
-    cam = None
-    if preset is not None:
-        cam = PRESETS[preset]
-    else:
-        info = seq_dir / "info.json"
-        if info.is_file():
-            try:
-                c = json.loads(info.read_text()).get("camera")
-                if isinstance(c, dict):
-                    cam = Camera(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]),
-                                 int(c.get("width", 640)), int(c.get("height", 480)))
-            except (ValueError, KeyError, TypeError, AttributeError) as e:
-                raise DatasetError(f"{info}: malformed camera entry ({e})") from None
-        if cam is None:
-            cam = camera_for_sequence(seq_dir.resolve().name)
-    over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
-    if over:
-        cam = dataclasses.replace(cam, **over)
-    return cam
-
-
-def _outlier_mask(est, width: int, height: int, valid_too: bool = False):
-    """Full-size (H, W) bool outlier mask (valid & ~inlier) of an estimate (and the valid mask)."""
-    import cv2
-
-    inl = np.asarray(est.inlier_mask, bool)
-    val = np.asarray(est.valid_mask, bool)
-    out = val & ~inl
-    if out.shape != (height, width):
-        out = cv2.resize(out.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
-        val = cv2.resize(val.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
-    return (out, val) if valid_too else out
-
-
-def _stamp_name(t: float) -> str:
-    return f"{float(t):.6f}"
-
-
-@dataclasses.dataclass
-class RunResult:
-    """What :func:`run_sequence` did.
-
-    stamps (n,) s and poses (n, 4, 4) T_world_cam of the frames written (frame 0 at the start pose);
-    inlier_ratio, valid (n-1,) per finished pair; compile_s: wall time until the first pair was
-    done (reading, compiling and running it); fps: pairs per second after the first pair (NaN
-    with fewer than 2 pairs); interrupted: ended by Ctrl-C.
-    """
-    method: str
-    stamps: np.ndarray
-    poses: np.ndarray
-    inlier_ratio: np.ndarray
-    valid: np.ndarray
-    compile_s: float
-    fps: float
-    wall_s: float
-    interrupted: bool = False
-
-    @property
-    def pairs(self) -> int:
-        return int(self.inlier_ratio.size)
-
-    @property
-    def failures(self) -> int:
-        return int(np.sum(~self.valid))
-
-
-def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
-                 on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
-    """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
-    :class:`jaxvo.odometry.TrackConfig`; default frame to frame), so results equal the library's,
-    writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
-    estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
-    timestamp: the mask lives on the reference image's pixels; with keyframes the last
-    estimate against a reference, the longest baseline, is the one kept).
-    ``on_pair(step)`` is called with each :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the run early
-    (``interrupted=True``) keeping everything written so far.
-    """
-    import cv2
-    import jax
-
-    from jaxvo.odometry import track
-    from jaxvo.trajectory import TrajectoryWriter
-
-    stamps = np.asarray(seq.timestamps, np.float64)
-    W, H = seq.camera.width, seq.camera.height
-    mask_dir = None
-    if save_masks is not None:
-        mask_dir = Path(save_masks)
-        try:
-            mask_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise DatasetError(f"{mask_dir}: cannot create mask folder ({e.strerror or e})") from None
-    writer = TrajectoryWriter(out) if out is not None else None
-    poses = [np.eye(4)]
-    ratios: List[float] = []
-    valids: List[bool] = []
-    times: List[float] = []
-    t0 = time.perf_counter()
-
-    def callback(step):
-        i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
-        ratios.append(float(est.inlier_ratio))
-        valids.append(bool(step.valid))
-        poses.append(np.asarray(pose, np.float64))
-        if writer is not None:
-            writer.write(stamps[i + 1], pose)
-        if mask_dir is not None:
-            m = _outlier_mask(est, W, H)
-            p = mask_dir / f"{_stamp_name(stamps[ref])}.png"
-            if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
-                raise OSError(f"{p}: could not write mask image")
-        if on_pair is not None:
-            on_pair(step)
-        times.append(time.perf_counter())
-        if pbar is not None:
-            pbar.update(1)
-            pbar.set_postfix(inliers=f"{ratios[-1]:.2f}", refresh=False)
-
-    interrupted = False
-    frames_it = seq.prefetch(2)
-    frames = (f for _, f in frames_it)
-    try:
-        if writer is not None:
-            writer.open()
-            writer.write_first(stamps[0])
-        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=callback, policy=policy)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        frames.close()
-        frames_it.close()
-        if writer is not None:
-            writer.close()
-    t_end = time.perf_counter()
-    n = len(poses)
-    compile_s = (times[0] - t0) if times else float("nan")
-    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else float("nan")
-    return RunResult(config.method, stamps[:n].copy(), np.stack(poses), np.asarray(ratios),
-                     np.asarray(valids, bool), compile_s, fps, t_end - t0, interrupted)
-
-
-def _fmt(x, nd=4) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return f"{x:.{nd}f}"
-
-
-def _trajectory_errors(gt, stamps, poses, max_dt=0.02) -> Dict[str, object]:
-    """RPE (1 frame, and 1 s where the run is long enough) and ATE of a trajectory; skips what cannot be formed."""
-    from jaxvo.metrics import ate, rpe
-
-    gt_t, gt_T = gt
-    out: Dict[str, object] = {}
-    if len(stamps) >= 2:
-        try:
-            out["rpe_1f"] = rpe(gt_t, gt_T, stamps, poses, 1, "f", max_dt)
-        except ValueError:
-            pass
-    if len(stamps) >= 2 and stamps[-1] - stamps[0] >= 1.0 - max_dt:
-        try:
-            out["rpe_1s"] = rpe(gt_t, gt_T, stamps, poses, 1.0, "s", max_dt)
-        except ValueError:
-            pass
-    if len(stamps) >= 3:
-        try:
-            out["ate"] = ate(gt_t, gt_T, stamps, poses, max_dt)
-        except ValueError:
-            pass
-    return out
-
-
-def _tqdm(**kw):
-    from tqdm import tqdm
-
-    return tqdm(dynamic_ncols=True, file=sys.stderr, **kw)
 
 
 # ----------------------------------------------------------------------------- the group
@@ -405,7 +184,7 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
     seq.check(1)                 # a bad first image is reported before compiling
     gt = seq.groundtruth         # and so is ground truth that does not cover the frames
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}", err=True)
-    pbar = None if no_progress else _tqdm(total=len(seq) - 1, unit="frame", desc=config.method)
+    pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     try:
         res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar, policy=policy)
     finally:
@@ -419,13 +198,13 @@ def _print_run_summary(res: RunResult, out, gt, max_dt):
     if res.interrupted:
         lines.append("interrupted (Ctrl-C): summary of the frames done so far")
     lines.append(f"frames        {len(res.stamps)} ({res.pairs} pairs), failures {res.failures}")
-    lines.append(f"inlier ratio  {_fmt(float(np.mean(res.inlier_ratio)) if res.pairs else float('nan'), 3)} (mean)")
-    lines.append(f"compile       {_fmt(res.compile_s, 1)} s (first pair, compilation included)")
-    lines.append(f"speed         {_fmt(res.fps, 2)} frames/s after compilation")
+    lines.append(f"inlier ratio  {fmt(float(np.mean(res.inlier_ratio)) if res.pairs else float('nan'), 3)} (mean)")
+    lines.append(f"compile       {fmt(res.compile_s, 1)} s (first pair, compilation included)")
+    lines.append(f"speed         {fmt(res.fps, 2)} frames/s after compilation")
     if out is not None:
         lines.append(f"trajectory    {out} ({len(res.stamps)} poses)")
     if gt is not None:
-        errs = _trajectory_errors(gt, res.stamps, res.poses, max_dt)
+        errs = trajectory_errors(gt, res.stamps, res.poses, max_dt)
         for key, label in (("rpe_1f", "RPE 1 frame"), ("rpe_1s", "RPE 1 s")):
             r = errs.get(key)
             if r is not None:
@@ -439,131 +218,6 @@ def _print_run_summary(res: RunResult, out, gt, max_dt):
 
 
 # ----------------------------------------------------------------------------- eval
-
-def _read_mask_dir(folder: Path):
-    """(stamps, paths) of ``<timestamp>.png`` files in a folder (sorted by time)."""
-    items = []
-    for p in folder.glob("*.png"):
-        try:
-            items.append((float(p.stem), p))
-        except ValueError:
-            continue
-    items.sort()
-    return np.asarray([t for t, _ in items], np.float64), [p for _, p in items]
-
-
-def _true_masks(seq_dir: Path):
-    """(stamps, paths) of a sequence's true moving-pixel masks (masks.txt, else masks/*.png); None if absent."""
-    if (seq_dir / "masks.txt").is_file():
-        t, names = read_file_list(seq_dir / "masks.txt")
-        return t, [seq_dir / n for n in names]
-    if (seq_dir / "masks").is_dir():
-        t, p = _read_mask_dir(seq_dir / "masks")
-        if t.size:
-            return t, p
-    return None
-
-
-def _load_mask(p: Path) -> np.ndarray:
-    import cv2
-
-    m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if m is None:
-        raise DatasetError(f"{p}: mask image does not decode (corrupt or not an image file)")
-    if m.ndim == 3:
-        m = m[..., 0]
-    return m > 127
-
-
-def score_masks(pred_dir, true_stamps, true_paths, max_dt: float = 0.02):
-    """Pooled :func:`jaxvo.metrics.mask_scores` of saved outlier masks against true moving masks,
-    matched by timestamp; returns (MaskScores, number of matched frames)."""
-    import cv2
-
-    from jaxvo.metrics import associate, mask_scores
-
-    pred_dir = Path(pred_dir)
-    if not pred_dir.is_dir():
-        raise DatasetError(f"{pred_dir}: mask folder does not exist")
-    ps, pp = _read_mask_dir(pred_dir)
-    if ps.size == 0:
-        raise DatasetError(f"{pred_dir}: no <timestamp>.png mask files")
-    ia, ib = associate(ps, true_stamps, max_dt)
-    if ia.size == 0:
-        raise DatasetError(f"{pred_dir}: no saved mask within {max_dt} s of a true mask's timestamp")
-    tp = fp = fn = tn = 0
-    for i, j in zip(ia, ib):
-        pred, true = _load_mask(pp[i]), _load_mask(true_paths[j])
-        if pred.shape != true.shape:
-            pred = cv2.resize(pred.astype(np.uint8), true.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
-        s = mask_scores(pred, true)
-        tp, fp, fn, tn = tp + s.tp, fp + s.fp, fn + s.fn, tn + s.tn
-    r = lambda a, b: a / b if b else float("nan")  # noqa: E731
-    from jaxvo.metrics import MaskScores
-    return MaskScores(r(tp, tp + fp), r(tp, tp + fn), r(tp, tp + fp + fn), r(tn, tn + fp + fn),
-                      r(tp + tn, tp + fp + fn + tn), tp, fp, fn, tn), int(ia.size)
-
-
-def _load_groundtruth(path: Path, bonn: Optional[bool]):
-    path = Path(path)
-    if path.is_dir():
-        gt_file = path / "groundtruth.txt"
-        if not gt_file.is_file():
-            raise DatasetError(f"{gt_file}: file not found (the sequence folder has no ground truth)")
-        seq_dir = path
-    elif path.exists():
-        gt_file, seq_dir = path, None
-    else:
-        raise DatasetError(f"{path}: ground truth file or sequence folder does not exist")
-    if bonn is None:
-        bonn = is_bonn_sequence(path if path.is_dir() else path.parent)
-    t, T = read_groundtruth(gt_file, bonn=bonn)
-    return gt_file, seq_dir, (t, T)
-
-
-def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", max_dt: float = 0.02,
-             masks_dir=None, bonn: Optional[bool] = None, slack: float = 0.1) -> dict:
-    """The numbers of ``jaxvo eval`` as a dict: ``rpe`` (RPEResult), ``ate`` (ATEResult),
-    ``masks`` (MaskScores or None), ``gt`` / ``est`` ((stamps, poses)), ``gt_file``.
-
-    Raises DatasetError when the ground truth does not cover the estimate: an estimate pose
-    more than ``max(max_dt, slack)`` s outside the ground truth's time span.
-    """
-    from jaxvo.metrics import ate, rpe
-    from jaxvo.trajectory import read_tum_trajectory
-
-    gt_file, seq_dir, gt = _load_groundtruth(Path(groundtruth), bonn)
-    est_path = Path(estimate)
-    if est_path.is_dir():
-        raise DatasetError(f"{est_path}: is a folder, expected a trajectory file")
-    es, eP = read_tum_trajectory(est_path)
-    gs = gt[0]
-    sl = max(max_dt, slack)
-    outside = int(np.sum((es < gs[0] - sl) | (es > gs[-1] + sl)))
-    if outside:
-        raise DatasetError(f"{gt_file}: ground truth ({gs[0]:.6f} .. {gs[-1]:.6f}) does not cover the estimate "
-                           f"{est_path} ({es[0]:.6f} .. {es[-1]:.6f}): {outside} of {es.size} poses are more "
-                           f"than {sl:g} s outside it")
-    try:
-        r = rpe(gt[0], gt[1], es, eP, delta, delta_unit, max_dt)
-    except ValueError as e:
-        hint = " (the estimate is shorter than the delta: try --delta-unit f)" if delta_unit == "s" else ""
-        raise ValueError(f"{est_path}: {e}{hint}") from None
-    try:
-        a = ate(gt[0], gt[1], es, eP, max_dt)
-    except ValueError as e:
-        raise ValueError(f"{est_path}: {e}") from None
-    masks = None
-    n_masks = 0
-    if masks_dir is not None:
-        tm = _true_masks(seq_dir) if seq_dir is not None else None
-        if tm is None:
-            where = seq_dir if seq_dir is not None else gt_file
-            raise DatasetError(f"{where}: no true moving-pixel masks (masks.txt / masks/) to score --masks-dir "
-                               f"against (give the sequence folder as GROUNDTRUTH)")
-        masks, n_masks = score_masks(masks_dir, tm[0], tm[1], max_dt)
-    return {"rpe": r, "ate": a, "masks": masks, "mask_frames": n_masks, "gt": gt, "est": (es, eP),
-            "gt_file": gt_file}
 
 
 @main.command("eval", help=f"""Compare a trajectory with ground truth: RPE, ATE, mask scores.
@@ -617,11 +271,11 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
              f"{'':<20}{'rmse':>10}{'mean':>10}{'median':>10}{'max':>10}{'n':>7}"]
     for name, s in rows:
         nd = 3 if "deg" in name else 4
-        lines.append(f"{name:<20}{_fmt(s.rmse, nd):>10}{_fmt(s.mean, nd):>10}{_fmt(s.median, nd):>10}"
-                     f"{_fmt(s.max, nd):>10}{s.n:>7}")
+        lines.append(f"{name:<20}{fmt(s.rmse, nd):>10}{fmt(s.mean, nd):>10}{fmt(s.median, nd):>10}"
+                     f"{fmt(s.max, nd):>10}{s.n:>7}")
     if m is not None:
         lines += ["", f"outlier mask vs true moving pixels ({res['mask_frames']} frames): precision "
-                      f"{_fmt(m.precision, 3)}, recall {_fmt(m.recall, 3)}, IoU {_fmt(m.iou_outlier, 3)}"]
+                      f"{fmt(m.precision, 3)}, recall {fmt(m.recall, 3)}, IoU {fmt(m.iou_outlier, 3)}"]
     click.echo("\n".join(lines))
     if json_file is not None:
         d = {"groundtruth": str(res["gt_file"]), "estimate": str(est), "rpe": r.to_dict(per_pair=per_pair),
@@ -694,7 +348,7 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress):
     from jaxvo.synthetic import SensorModel, generate
 
     cam = DEFAULT.at_level(SIZES[size])
-    pbar = None if no_progress else _tqdm(total=frames, unit="frame", desc=f"render {name}")
+    pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
         out = generate(name, out_dir, frames=frames, seed=seed, camera=cam,
                        sensor=SensorModel() if sensor else None,
@@ -734,7 +388,7 @@ def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_p
     real_seq = Path(real_seq)
     if not real_seq.is_dir():
         raise DatasetError(f"{real_seq}: sequence folder does not exist")
-    pbar = None if no_progress else _tqdm(total=max_frames or 0, unit="frame", desc="augment")
+    pbar = None if no_progress else progress_bar(total=max_frames or 0, unit="frame", desc="augment")
     try:
         out = augment(real_seq, out_dir, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
                       camera=PRESETS[camera_preset] if camera_preset else None,
@@ -753,8 +407,6 @@ def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_p
 
 
 # ----------------------------------------------------------------------------- demo
-
-DEMO_METHODS = ("classic", "huber", "ransac")
 
 
 @main.command("demo", help=f"""Synthetic dynamic scene -> classic vs Huber vs RANSAC, one table and figures.
@@ -796,155 +448,6 @@ def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress):
                       progress=not no_progress)
     click.echo(result["table"])
     click.echo(f"\nfigures and results in {out_dir}/ ({result['wall_s']:.0f} s)")
-
-
-def _sequence_matches(seq_dir: Path, name, frames, seed, cam, sensor) -> bool:
-    try:
-        info = json.loads((seq_dir / "info.json").read_text())
-    except (OSError, ValueError):
-        return False
-    c = info.get("camera") or {}
-    return (info.get("name") == name and info.get("frames") == frames and info.get("seed") == seed
-            and c.get("width") == cam.width and c.get("height") == cam.height
-            and (info.get("sensor") is not None) == bool(sensor)
-            and (seq_dir / "groundtruth.txt").is_file() and (seq_dir / "masks.txt").is_file())
-
-
-def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", size: str = "320x240",
-             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS) -> dict:
-    """The work of ``jaxvo demo``; returns a dict with ``table`` (str), ``results`` (per method),
-    ``figures`` (paths) and ``wall_s``."""
-    from jaxvo import viz
-    from jaxvo.metrics import ate, mask_scores, rpe
-    from jaxvo.odometry import Config
-    from jaxvo.synthetic import SensorModel, generate
-
-    t_start = time.perf_counter()
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise DatasetError(f"{out}: cannot create output folder ({e.strerror or e})") from None
-    cam = DEFAULT.at_level(SIZES[size])
-    seq_dir = out / "sequence"
-    reuse = _sequence_matches(seq_dir, seq_name, frames, seed, cam, sensor)
-    total = (0 if reuse else frames) + len(methods) * (frames - 1)
-    pbar = _tqdm(total=total, unit="step", desc="demo") if progress else None
-    try:
-        if not reuse:
-            if seq_dir.exists():
-                shutil.rmtree(seq_dir)
-            if pbar is not None:
-                pbar.set_description(f"demo: render {seq_name}")
-            done = [0]
-
-            def prog(k, n):
-                if pbar is not None:
-                    pbar.update(k - done[0])
-                done[0] = k
-            generate(seq_name, seq_dir, frames=frames, seed=seed, camera=cam,
-                     sensor=SensorModel() if sensor else None, progress=prog)
-        seq = TumSequence(seq_dir, camera=cam)
-        gt_t, gt_T = seq.groundtruth
-        mt, mpaths = _true_masks(seq_dir)
-        true_masks = [_load_mask(p) for p in mpaths]
-        cover = np.array([m.mean() for m in true_masks])
-        # the dynamic frame shown in the overlay: most moving pixels (a pair's reference frame)
-        show = int(np.argmax(cover[:-1])) if len(cover) > 1 else 0
-        results = {}
-        shown = {}
-        for method in methods:
-            config = Config(method=method)
-            counts = np.zeros(4, np.int64)
-
-            def on_pair(step, counts=counts, method=method):
-                est = step.estimate
-                pred, val = _outlier_mask(est, cam.width, cam.height, valid_too=True)
-                s = mask_scores(pred, true_masks[step.reference], val)
-                counts += (s.tp, s.fp, s.fn, s.tn)
-                if step.reference == show:
-                    shown[method] = (np.asarray(est.inlier_mask, bool), np.asarray(est.valid_mask, bool))
-            if pbar is not None:
-                pbar.set_description(f"demo: {method}")
-            res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)
-            if res.interrupted:
-                raise KeyboardInterrupt
-            r1 = rpe(gt_t, gt_T, res.stamps, res.poses, 1, "f")
-            a = ate(gt_t, gt_T, res.stamps, res.poses)
-            tp, fp, fn, tn = (int(x) for x in counts)
-            results[method] = {
-                "rpe": r1, "ate": a, "run": res,
-                "precision": tp / (tp + fp) if tp + fp else float("nan"),
-                "recall": tp / (tp + fn) if tp + fn else float("nan"),
-                "iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"),
-            }
-    finally:
-        if pbar is not None:
-            pbar.close()
-
-    # table
-    head = (f"{'method':<9}{'RPE trans':>11}{'RPE rot':>10}{'ATE':>9}{'FPS':>7}{'inliers':>9}"
-            f"{'mask prec':>11}{'mask rec':>10}")
-    units = f"{'':<9}{'mm/frame':>11}{'deg/frame':>10}{'mm':>9}{'':>7}{'ratio':>9}{'':>11}{'':>10}"
-    rows = [f"{seq_name} ({frames} frames, {size}{', sensor noise' if sensor else ''}, seed {seed}); "
-            f"moving pixels per frame: {100 * cover.mean():.1f} % mean, {100 * cover.max():.1f} % max",
-            head, units]
-    for m, d in results.items():
-        rows.append(f"{m:<9}{1000 * d['rpe'].trans_stats.rmse:>11.2f}{d['rpe'].rot_stats.rmse:>10.3f}"
-                    f"{1000 * d['ate'].rmse:>9.1f}{_fmt(d['run'].fps, 1):>7}"
-                    f"{float(np.mean(d['run'].inlier_ratio)):>9.3f}{_fmt(d['precision'], 3):>11}"
-                    f"{_fmt(d['recall'], 3):>10}")
-    table = "\n".join(rows)
-
-    # figures
-    figs = {}
-    t0 = seq.timestamps[0]
-    keep = (gt_t >= seq.timestamps[0] - 0.05) & (gt_t <= seq.timestamps[-1] + 0.05)
-    trajs = {"groundtruth": gt_T[keep, :3, 3]}
-    trajs.update({m: d["ate"].aligned[:, :3, 3] for m, d in results.items()})
-    figs["trajectories"] = viz.save_figure(
-        viz.plot_trajectories(trajs, title=f"{seq_name}: trajectories, top view (aligned to ground truth)"),
-        out / "trajectories.png")
-    figs["translational_error"] = viz.save_figure(
-        viz.plot_errors_over_time({m: d["rpe"].stamps_j - t0 for m, d in results.items()},
-                                  {m: 1000 * d["rpe"].trans for m, d in results.items()},
-                                  ylabel="translational RPE [mm/frame]",
-                                  title=f"{seq_name}: translational error per frame"),
-        out / "translational_error.png")
-    if shown:
-        import matplotlib.pyplot as plt
-        fr = seq.frame(show)
-        fig, axs = plt.subplots(1, len(shown), figsize=(4.2 * len(shown), 3.6))
-        axs = np.atleast_1d(axs)
-        for ax, (m, (inl, val)) in zip(axs, shown.items()):
-            ax.imshow(viz.outlier_overlay(fr.intensity, inl, val))
-            tm = true_masks[show]
-            if tm.any():
-                ax.contour(tm.astype(float), levels=[0.5], colors="red", linewidths=0.7)
-            ax.set_title(f"{m}: inliers blue, outliers green", fontsize=9)
-            ax.set_axis_off()
-        fig.suptitle(f"{seq_name} frame {show} (t = {seq.timestamps[show] - t0:.2f} s); true moving pixels "
-                     f"outlined red", fontsize=9)
-        fig.tight_layout()
-        figs["inliers_outliers"] = viz.save_figure(fig, out / "inliers_outliers.png")
-
-    wall = time.perf_counter() - t_start
-    js = {"sequence": seq_name, "frames": frames, "size": size, "sensor": sensor, "seed": seed,
-          "overlay_frame": show, "wall_s": wall, "methods": {}}
-    for m, d in results.items():
-        js["methods"][m] = {"rpe_1f": d["rpe"].to_dict(), "ate": d["ate"].to_dict(),
-                            "fps": _clean(d["run"].fps), "compile_s": _clean(d["run"].compile_s),
-                            "inlier_ratio_mean": float(np.mean(d["run"].inlier_ratio)),
-                            "failures": d["run"].failures,
-                            "mask_precision": _clean(d["precision"]), "mask_recall": _clean(d["recall"]),
-                            "mask_iou": _clean(d["iou"])}
-    (out / "results.json").write_text(json.dumps(js, indent=1) + "\n")
-    (out / "results.md").write_text("```\n" + table + "\n```\n")
-    return {"table": table, "results": results, "figures": figs, "wall_s": wall, "overlay_frame": show}
-
-
-def _clean(x):
-    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
 
 
 # ----------------------------------------------------------------------------- map
@@ -1011,7 +514,7 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
     config = Config(method=method)
     click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames, every {every}, labels "
                f"{labels if labels != 'estimate' else method}, {seq.camera!r}", err=True)
-    pbar = None if no_progress else _tqdm(total=0, unit="frame", desc="map")
+    pbar = None if no_progress else progress_bar(total=0, unit="frame", desc="map")
 
     def prog(done, total):
         if pbar is not None:
@@ -1033,7 +536,7 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
              f"{int(cloud.moving.sum())} moving ({100 * float(cloud.moving.mean()):.1f} %)",
              f"map           {out_ply} (binary PLY, static points in RGB, moving points green)"]
     if labels == "estimate":
-        lines.insert(1, f"inlier ratio  {_fmt(float(np.nanmean(res.inlier_ratio)), 3)} (mean, {method})")
+        lines.insert(1, f"inlier ratio  {fmt(float(np.nanmean(res.inlier_ratio)), 3)} (mean, {method})")
     if preview is not None:
         render_preview(cloud.points, cloud.display_colors(), preview, poses=res.poses,
                        title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else ""))

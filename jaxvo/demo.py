@@ -1,0 +1,186 @@
+"""The work of ``jaxvo demo``: a synthetic dynamic scene, the three estimators, one table and figures."""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaxvo.camera import DEFAULT
+from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.evaluation import load_mask, true_masks
+from jaxvo.runner import outlier_mask, run_sequence
+
+__all__ = ["run_demo", "DEMO_METHODS", "SIZES", "fmt", "progress_bar"]
+
+SIZES = {"640x480": 0, "320x240": 1, "160x120": 2}
+DEMO_METHODS = ("classic", "huber", "ransac")
+
+
+def fmt(x, nd=4) -> str:
+    """``x`` with ``nd`` decimals; "-" for None, NaN and inf."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x:.{nd}f}"
+
+
+def progress_bar(**kw):
+    """A tqdm progress bar on stderr."""
+    from tqdm import tqdm
+
+    return tqdm(dynamic_ncols=True, file=sys.stderr, **kw)
+
+
+
+def _sequence_matches(seq_dir: Path, name, frames, seed, cam, sensor) -> bool:
+    try:
+        info = json.loads((seq_dir / "info.json").read_text())
+    except (OSError, ValueError):
+        return False
+    c = info.get("camera") or {}
+    return (info.get("name") == name and info.get("frames") == frames and info.get("seed") == seed
+            and c.get("width") == cam.width and c.get("height") == cam.height
+            and (info.get("sensor") is not None) == bool(sensor)
+            and (seq_dir / "groundtruth.txt").is_file() and (seq_dir / "masks.txt").is_file())
+
+
+def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", size: str = "320x240",
+             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS) -> dict:
+    """The work of ``jaxvo demo``; returns a dict with ``table`` (str), ``results`` (per method),
+    ``figures`` (paths) and ``wall_s``."""
+    from jaxvo import viz
+    from jaxvo.metrics import ate, mask_scores, rpe
+    from jaxvo.odometry import Config
+    from jaxvo.synthetic import SensorModel, generate
+
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise DatasetError(f"{out}: cannot create output folder ({e.strerror or e})") from None
+    cam = DEFAULT.at_level(SIZES[size])
+    seq_dir = out / "sequence"
+    reuse = _sequence_matches(seq_dir, seq_name, frames, seed, cam, sensor)
+    total = (0 if reuse else frames) + len(methods) * (frames - 1)
+    pbar = progress_bar(total=total, unit="step", desc="demo") if progress else None
+    try:
+        if not reuse:
+            if seq_dir.exists():
+                shutil.rmtree(seq_dir)
+            if pbar is not None:
+                pbar.set_description(f"demo: render {seq_name}")
+            done = [0]
+
+            def prog(k, n):
+                if pbar is not None:
+                    pbar.update(k - done[0])
+                done[0] = k
+            generate(seq_name, seq_dir, frames=frames, seed=seed, camera=cam,
+                     sensor=SensorModel() if sensor else None, progress=prog)
+        seq = TumSequence(seq_dir, camera=cam)
+        gt_t, gt_T = seq.groundtruth
+        mt, mpaths = true_masks(seq_dir)
+        masks_true = [load_mask(p) for p in mpaths]
+        cover = np.array([m.mean() for m in masks_true])
+        # the dynamic frame shown in the overlay: most moving pixels (a pair's reference frame)
+        show = int(np.argmax(cover[:-1])) if len(cover) > 1 else 0
+        results = {}
+        shown = {}
+        for method in methods:
+            config = Config(method=method)
+            counts = np.zeros(4, np.int64)
+
+            def on_pair(step, counts=counts, method=method):
+                est = step.estimate
+                pred, val = outlier_mask(est, cam.width, cam.height, valid_too=True)
+                s = mask_scores(pred, masks_true[step.reference], val)
+                counts += (s.tp, s.fp, s.fn, s.tn)
+                if step.reference == show:
+                    shown[method] = (np.asarray(est.inlier_mask, bool), np.asarray(est.valid_mask, bool))
+            if pbar is not None:
+                pbar.set_description(f"demo: {method}")
+            res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)
+            if res.interrupted:
+                raise KeyboardInterrupt
+            r1 = rpe(gt_t, gt_T, res.stamps, res.poses, 1, "f")
+            a = ate(gt_t, gt_T, res.stamps, res.poses)
+            tp, fp, fn, tn = (int(x) for x in counts)
+            results[method] = {
+                "rpe": r1, "ate": a, "run": res,
+                "precision": tp / (tp + fp) if tp + fp else float("nan"),
+                "recall": tp / (tp + fn) if tp + fn else float("nan"),
+                "iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"),
+            }
+    finally:
+        if pbar is not None:
+            pbar.close()
+
+    # table
+    head = (f"{'method':<9}{'RPE trans':>11}{'RPE rot':>10}{'ATE':>9}{'FPS':>7}{'inliers':>9}"
+            f"{'mask prec':>11}{'mask rec':>10}")
+    units = f"{'':<9}{'mm/frame':>11}{'deg/frame':>10}{'mm':>9}{'':>7}{'ratio':>9}{'':>11}{'':>10}"
+    rows = [f"{seq_name} ({frames} frames, {size}{', sensor noise' if sensor else ''}, seed {seed}); "
+            f"moving pixels per frame: {100 * cover.mean():.1f} % mean, {100 * cover.max():.1f} % max",
+            head, units]
+    for m, d in results.items():
+        rows.append(f"{m:<9}{1000 * d['rpe'].trans_stats.rmse:>11.2f}{d['rpe'].rot_stats.rmse:>10.3f}"
+                    f"{1000 * d['ate'].rmse:>9.1f}{fmt(d['run'].fps, 1):>7}"
+                    f"{float(np.mean(d['run'].inlier_ratio)):>9.3f}{fmt(d['precision'], 3):>11}"
+                    f"{fmt(d['recall'], 3):>10}")
+    table = "\n".join(rows)
+
+    # figures
+    figs = {}
+    t0 = seq.timestamps[0]
+    keep = (gt_t >= seq.timestamps[0] - 0.05) & (gt_t <= seq.timestamps[-1] + 0.05)
+    trajs = {"groundtruth": gt_T[keep, :3, 3]}
+    trajs.update({m: d["ate"].aligned[:, :3, 3] for m, d in results.items()})
+    figs["trajectories"] = viz.save_figure(
+        viz.plot_trajectories(trajs, title=f"{seq_name}: trajectories, top view (aligned to ground truth)"),
+        out / "trajectories.png")
+    figs["translational_error"] = viz.save_figure(
+        viz.plot_errors_over_time({m: d["rpe"].stamps_j - t0 for m, d in results.items()},
+                                  {m: 1000 * d["rpe"].trans for m, d in results.items()},
+                                  ylabel="translational RPE [mm/frame]",
+                                  title=f"{seq_name}: translational error per frame"),
+        out / "translational_error.png")
+    if shown:
+        import matplotlib.pyplot as plt
+        fr = seq.frame(show)
+        fig, axs = plt.subplots(1, len(shown), figsize=(4.2 * len(shown), 3.6))
+        axs = np.atleast_1d(axs)
+        for ax, (m, (inl, val)) in zip(axs, shown.items()):
+            ax.imshow(viz.outlier_overlay(fr.intensity, inl, val))
+            tm = masks_true[show]
+            if tm.any():
+                ax.contour(tm.astype(float), levels=[0.5], colors="red", linewidths=0.7)
+            ax.set_title(f"{m}: inliers blue, outliers green", fontsize=9)
+            ax.set_axis_off()
+        fig.suptitle(f"{seq_name} frame {show} (t = {seq.timestamps[show] - t0:.2f} s); true moving pixels "
+                     f"outlined red", fontsize=9)
+        fig.tight_layout()
+        figs["inliers_outliers"] = viz.save_figure(fig, out / "inliers_outliers.png")
+
+    wall = time.perf_counter() - t_start
+    js = {"sequence": seq_name, "frames": frames, "size": size, "sensor": sensor, "seed": seed,
+          "overlay_frame": show, "wall_s": wall, "methods": {}}
+    for m, d in results.items():
+        js["methods"][m] = {"rpe_1f": d["rpe"].to_dict(), "ate": d["ate"].to_dict(),
+                            "fps": _clean(d["run"].fps), "compile_s": _clean(d["run"].compile_s),
+                            "inlier_ratio_mean": float(np.mean(d["run"].inlier_ratio)),
+                            "failures": d["run"].failures,
+                            "mask_precision": _clean(d["precision"]), "mask_recall": _clean(d["recall"]),
+                            "mask_iou": _clean(d["iou"])}
+    (out / "results.json").write_text(json.dumps(js, indent=1) + "\n")
+    (out / "results.md").write_text("```\n" + table + "\n```\n")
+    return {"table": table, "results": results, "figures": figs, "wall_s": wall, "overlay_frame": show}
+
+
+def _clean(x):
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
