@@ -34,7 +34,7 @@ from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
 from jaxvo.solvers import irls, solve_pose
 
-__all__ = ["Config", "MotionEstimate", "estimate_motion", "track", "Track", "TrackConfig", "TrackStep", "METHODS", "trace_count"]
+__all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "track", "Track", "TrackConfig", "TrackStep", "METHODS", "trace_count"]
 
 class MotionEstimate(NamedTuple):
     """Result of :func:`estimate_motion`.
@@ -143,9 +143,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     level = config.finest_level
     cam = camera.at_level(level)
     ref_l, cur_l = ref_pyr[level], cur_pyr[level]
-    dense = reference_points(ref_l, cam, 1)
-    res = residuals(T, dense, cur_l, cam)
-    inl = inliers(res, config.thresh_lum, config.thresh_depth)
+    dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
     hl, wl = ref_l.depth.shape
     n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
     ratio = jnp.sum(inl) / n_valid
@@ -154,15 +152,80 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     nw = jnp.maximum(jnp.sum(wts), 1)
     var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
     info = sol.hessian / jnp.maximum(var, 1e-6)
-    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
-    finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
-    conditioned = eig[0] > 1e-9 * jnp.maximum(eig[-1], 1e-30)
-    valid = finite & conditioned & (ratio >= config.min_inlier_ratio)
+    valid = _trusted(_trust_stats(ref_l, res, inl, dense.valid, info, T, config.thresh_lum), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
                           jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
 
 
 _estimate_jit = jax.jit(_estimate)
+
+
+def _final_residuals(ref_l, cur_l, cam, T, config):
+    """Every reference pixel of a level, its residuals at the final pose and the inlier mask."""
+    dense = reference_points(ref_l, cam, 1)
+    res = residuals(T, dense, cur_l, cam)
+    return dense, res, inliers(res, config.thresh_lum, config.thresh_depth)
+
+
+class TrustStats(NamedTuple):
+    """What :attr:`MotionEstimate.valid` is decided on (scalars, at the finest level processed).
+
+    finite: T_cur_ref and the information matrix are finite.
+    conditioning: smallest / largest eigenvalue of the information matrix.
+    inlier_ratio: inliers / reference pixels with valid depth (as in MotionEstimate).
+    overlap: reference pixels with valid depth that land inside the current image on valid
+      depth, as a fraction of the reference pixels with valid depth.
+    overlap_inlier_ratio: inliers / those overlapping pixels.
+    textured: fraction of the valid-depth reference pixels that are textured (intensity gradient
+      above thresh_lum / 4 per pixel: misplaced by 4 pixels they fail the luminance threshold).
+    textured_inlier_ratio: inliers / overlapping textured pixels; smooth areas agree with any
+      pose, the textured ones only with the right one.
+    """
+    finite: jnp.ndarray
+    conditioning: jnp.ndarray
+    inlier_ratio: jnp.ndarray
+    overlap: jnp.ndarray
+    overlap_inlier_ratio: jnp.ndarray
+    textured: jnp.ndarray
+    textured_inlier_ratio: jnp.ndarray
+
+
+def _trust_stats(ref_l, res, inl, ref_valid, info, T, thresh_lum) -> TrustStats:
+    def frac(a, b):
+        return jnp.sum(a) / jnp.maximum(jnp.sum(b), 1)
+    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
+    finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
+    g = jnp.sqrt(ref_l.igrad[..., 1] ** 2 + ref_l.igrad[..., 2] ** 2).reshape(-1)
+    textured = ref_valid & (g > 0.25 * thresh_lum)
+    return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(inl, ref_valid),
+                      frac(res.valid_depth, ref_valid), frac(inl, res.valid_depth), frac(textured, ref_valid),
+                      frac(inl & textured, res.valid_depth & textured))
+
+
+def _trusted(s: TrustStats, config: Config):
+    return s.finite & (s.conditioning > 1e-9) & (s.inlier_ratio >= config.min_inlier_ratio)
+
+
+@jax.jit
+def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info):
+    level = config.finest_level
+    L = _levels(config, ref_int.shape[1], ref_int.shape[0])
+    ref_l = build_pyramid(ref_int, ref_depth, L, config.max_depth)[level]
+    cur_l = build_pyramid(cur_int, cur_depth, L, config.max_depth)[level]
+    dense, res, inl = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
+    s = _trust_stats(ref_l, res, inl, dense.valid, info, T, config.thresh_lum)
+    return s, _trusted(s, config)
+
+
+def explain_validity(ref: Frame, cur: Frame, camera: Camera, estimate: "MotionEstimate",
+                     config: Optional[Config] = None):
+    """Why ``estimate`` (of ``estimate_motion(ref, cur, camera, config)``) is or is not ``valid``:
+    returns ``(TrustStats, valid)``, recomputed exactly as the estimator does at the end."""
+    config = _checked_settings(config, camera)
+    validate_pair(ref, cur, camera)
+    return _explain(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
+                    jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
+                    camera, config, estimate.T_cur_ref, estimate.information)
 
 
 def _is_concrete(x) -> bool:
