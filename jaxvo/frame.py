@@ -21,9 +21,15 @@ __all__ = ["Frame", "make_frame", "luminance", "validate_pair"]
 
 
 class Frame(NamedTuple):
-    """One RGB-D frame: intensity (H, W) float32 on 0-255, depth (H, W) float32 metres (0 = invalid)."""
+    """One RGB-D frame: intensity (H, W) float32 on 0-255, depth (H, W) float32 metres (0 = invalid).
+
+    mask: optional (H, W) bool, True where the pixel may be used (as OpenCV's
+    ``OdometryFrame`` mask, e.g. False on a detector's people); None = every pixel.
+    It applies where the frame is the reference of an estimate.
+    """
     intensity: np.ndarray
     depth: np.ndarray
+    mask: Optional[np.ndarray] = None
 
     @property
     def shape(self):
@@ -50,7 +56,7 @@ def luminance(image: np.ndarray, order: str = "rgb") -> np.ndarray:
 
 
 def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order: str = "rgb",
-               source: str = "") -> Frame:
+               source: str = "", mask=None) -> Frame:
     """Build and validate a Frame.
 
     Args:
@@ -59,6 +65,7 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
         factor: value / 5000 = metres); float depth is taken as metres unless ``depth_scale``
         is given. NaN, inf and negative values become 0 (invalid).
       source: a name (e.g. the file) to put in error messages.
+      mask: optional (H, W) usable-pixel mask (nonzero = usable), see :class:`Frame`.
 
     Raises:
       ValueError: wrong shapes or dtypes, mismatched sizes, no valid depth at all, or depth
@@ -95,7 +102,13 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
                          f"(expected metres; pass depth_scale, e.g. 1000 for millimetres)")
     if not np.isfinite(inten).all():
         raise ValueError(f"{where}intensity contains NaN or inf")
-    return Frame(np.ascontiguousarray(inten, dtype=np.float32), np.ascontiguousarray(z))
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != d.shape:
+            raise ValueError(f"{where}mask size {mask.shape[1] if mask.ndim > 1 else mask.shape} does not match "
+                             f"the image size {d.shape[1]}x{d.shape[0]}")
+        mask = mask != 0
+    return Frame(np.ascontiguousarray(inten, dtype=np.float32), np.ascontiguousarray(z), mask)
 
 
 def validate_pair(ref: Frame, cur: Frame, camera) -> None:

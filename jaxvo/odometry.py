@@ -82,11 +82,11 @@ def _block(config: Config, level: int) -> int:
     return int(config.blocks[level]) if level < len(config.blocks) else 1
 
 
-def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init):
+def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init, ref_weight):
     _TRACES["count"] += 1
     h, w = ref_int.shape
     L = _levels(config, w, h)
-    ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth)
+    ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth, ref_weight)
     cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
     T = T_init
     dw = config.depth_weight if config.terms == "rgbd" else None
@@ -97,7 +97,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
         cam = camera.at_level(level)
         ref_l, cur_l = ref_pyr[level], cur_pyr[level]
         pts = select_points(ref_l, cam, _block(config, level))
-        ones = pts.valid.astype(jnp.float32)
+        ones = pts.weight
         if config.method == "classic":
             sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
             iters[level] = sol.iterations
@@ -127,13 +127,13 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             it = jnp.int32(0)
             for _ in range(config.refine_rounds):
                 mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
+                consensus = jnp.where(mask, pts.weight, 0.0)
                 if config.consensus_weights == "huber":
                     inner = config.irls_iterations
-                    sol = irls(T, pts, cur_l, cam, mask.astype(jnp.float32), config.huber_k, config.irls_rounds,
+                    sol = irls(T, pts, cur_l, cam, consensus, config.huber_k, config.irls_rounds,
                                inner, depth_weight=dw)
                 else:
-                    sol = solve_pose(T, pts, cur_l, cam, mask.astype(jnp.float32), config.max_iterations,
-                                     depth_weight=dw)
+                    sol = solve_pose(T, pts, cur_l, cam, consensus, config.max_iterations, depth_weight=dw)
                 T = sol.T
                 it = it + sol.iterations
             iters[level] = it
@@ -259,7 +259,7 @@ def _checked_key(key):
 
 
 def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config] = None, key=None,
-                    init=None) -> MotionEstimate:
+                    init=None, weights=None) -> MotionEstimate:
     """Estimate the rigid motion between two RGB-D frames.
 
     Args:
@@ -271,6 +271,10 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       key: ``jax.random`` key (used by "ransac"); default ``jax.random.key(0)``. The
         same key gives a bitwise identical result.
       init: optional (4, 4) initial guess of T_cur_ref (default identity).
+      weights: optional (H, W) trust in each *reference* pixel as static scene, in [0, 1]
+        (e.g. a static-probability prior; 0 = ignore). It multiplies ``ref.mask`` (a
+        user mask: True = the pixel may be used, as OpenCV's ``OdometryFrame`` mask).
+        RANSAC samples only pixels of weight >= 0.5, scoring and refinement weigh by it.
 
     Returns:
       :class:`MotionEstimate` whose ``T_cur_ref`` maps reference-camera points into the current camera.
@@ -291,9 +295,17 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
     T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
     if T0.shape != (4, 4):
         raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
+    wt = jnp.ones((h, w), jnp.float32) if weights is None else jnp.asarray(weights, jnp.float32)
+    if wt.shape != (h, w):
+        raise ValueError(f"weights must have the images' shape {(h, w)}, got {wt.shape}")
+    if getattr(ref, "mask", None) is not None:
+        m = jnp.asarray(ref.mask)
+        if m.shape != (h, w):
+            raise ValueError(f"reference frame: mask must have the images' shape {(h, w)}, got {m.shape}")
+        wt = wt * (m != 0)
     return _estimate_jit(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
                          jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
-                         camera, config, key, T0)
+                         camera, config, key, T0, wt)
 
 
 class Track(NamedTuple):

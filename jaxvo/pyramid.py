@@ -27,11 +27,15 @@ class Level(NamedTuple):
     dgrad: (h, w, 4) depth, d depth / d u, d depth / d v (metres per pixel) and a
     smoothness flag (1 where the pixel and its 4 neighbours have valid depth with
     no discontinuity, else 0), for the depth term of the joint RGB-D residual.
+    weight: (h, w) in [0, 1], how far each pixel may be trusted as static scene (a user
+    mask, a static-probability prior; 1 = fully, 0 = ignore); 2x2 block mean per level.
+    It multiplies a reference pixel's weight everywhere it is used; a current frame's is unused.
     """
     intensity: jnp.ndarray
     depth: jnp.ndarray
     igrad: jnp.ndarray
     dgrad: jnp.ndarray
+    weight: jnp.ndarray
 
 
 def sanitize_depth(depth, max_depth, min_depth=0.0):
@@ -78,19 +82,23 @@ def depth_gradients(depth, max_jump=0.05):
     return jnp.stack([d, gu * f, gv * f, f], -1)
 
 
-def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0) -> Tuple[Level, ...]:
+def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0, weight=None) -> Tuple[Level, ...]:
     """(H, W) intensity and depth -> tuple of ``num_levels`` Levels, index 0 = full resolution.
 
     Depth beyond ``max_depth`` metres (and NaN / non-positive) is invalid at every level.
+    weight: optional (H, W) per-pixel trust in [0, 1] (default all 1), see :class:`Level`.
     """
     i = jnp.asarray(intensity, jnp.float32)
     d = sanitize_depth(depth, max_depth)
+    wt = jnp.ones_like(i) if weight is None else jnp.clip(jnp.asarray(weight, jnp.float32), 0.0, 1.0)
     levels = []
     for l in range(num_levels):
         if l > 0:
             i, d = downsample(i, d)
+            h2, w2 = i.shape
+            wt = wt[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean(axis=(1, 3))
         gu, gv = gradients(i)
-        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d)))
+        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d), wt))
     return tuple(levels)
 
 

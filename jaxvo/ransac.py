@@ -53,8 +53,8 @@ def inliers(res: Residuals, thresh_lum, thresh_depth):
 
 
 def sample_patches(key, level: Level, n: int, batch: int, radius: int):
-    """Draw ``batch`` samples of ``n`` patch centres uniformly among reference pixels with valid depth
-    whose (2r+1)^2 neighbourhood lies inside the image.
+    """Draw ``batch`` samples of ``n`` patch centres uniformly among reference pixels with valid depth,
+    trusted as static (``level.weight`` >= 0.5), whose (2r+1)^2 neighbourhood lies inside the image.
 
     Returns integer (u, v) coordinates of the patch pixels, each (batch, n * (2r+1)^2).
     Sampling is by inverse CDF over the valid-pixel count (O(h w) once, then
@@ -62,7 +62,7 @@ def sample_patches(key, level: Level, n: int, batch: int, radius: int):
     """
     h, w = level.depth.shape
     vv, uu = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    ok = (level.depth > 0) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
+    ok = (level.depth > 0) & (level.weight >= 0.5) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
     cdf = jnp.cumsum(ok.reshape(-1).astype(jnp.int32))
     total = cdf[-1]
     draws = jax.random.randint(key, (batch, n), 0, jnp.maximum(total, 1))
@@ -100,16 +100,17 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     denominator is the number of scoring points with valid reference depth.
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
-    n_ref = jnp.maximum(jnp.sum(score_ref.valid), 1).astype(jnp.float32)
+    # scoring pixels count by their static-trust weight (1 everywhere without a prior)
+    n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
 
     def score(T):
         res = residuals(T, score_ref, cur_level, camera)
         inl = inliers(res, thresh_lum, thresh_depth)
-        count = jnp.sum(inl)
+        count = jnp.sum(jnp.where(inl, score_ref.weight, 0.0))
         if scoring == "count":
-            return count.astype(jnp.float32), count
+            return count, count
         e2 = 0.5 * ((res.r_int / thresh_lum) ** 2 + (res.r_depth / thresh_depth) ** 2)
-        return jnp.sum(jnp.where(inl, 1.0 - e2, 0.0)), count
+        return jnp.sum(jnp.where(inl, score_ref.weight * (1.0 - e2), 0.0)), count
 
     def hypothesis(pu, pv):
         pts = gather_points(ref_level, camera, pu, pv)
@@ -118,7 +119,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
 
     def cond(state):
         b, _, _, best_count, _ = state
-        return (b * batch_size < k) & (best_count.astype(jnp.float32) / n_ref <= early_exit_ratio)
+        return (b * batch_size < k) & (best_count / n_ref <= early_exit_ratio)
 
     def body(state):
         b, T_best, best, best_count, evaluated = state
@@ -138,4 +139,4 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     q0, c0 = score(T_init)
     state = (jnp.int32(0), T_init, q0, c0, jnp.int32(0))
     _, T_best, _, best_count, evaluated = jax.lax.while_loop(cond, body, state)
-    return RansacResult(T_best, best_count.astype(jnp.float32) / n_ref, evaluated)
+    return RansacResult(T_best, best_count / n_ref, evaluated)

@@ -40,12 +40,14 @@ class RefPoints(NamedTuple):
     points: (N, 3) metres in the reference camera frame (0 where invalid).
     intensity: (N,) reference luminance. valid: (N,) bool, reference depth valid.
     u, v: (N,) pixel coordinates at this level (u = column, v = row).
+    weight: (N,) float32, the level's static-trust weight at the pixel, 0 where depth is invalid.
     """
     points: jnp.ndarray
     intensity: jnp.ndarray
     valid: jnp.ndarray
     u: jnp.ndarray
     v: jnp.ndarray
+    weight: jnp.ndarray
 
 
 class Residuals(NamedTuple):
@@ -73,7 +75,9 @@ def reference_points(level: Level, camera: Camera, stride: int = 1) -> RefPoints
     z = level.depth[::stride, ::stride]
     inten = level.intensity[::stride, ::stride]
     P = backproject(camera, uu, vv, z)
-    return RefPoints(P.reshape(-1, 3), inten.reshape(-1), (z > 0).reshape(-1), uu.reshape(-1), vv.reshape(-1))
+    wt = jnp.where(z > 0, level.weight[::stride, ::stride], 0.0)
+    return RefPoints(P.reshape(-1, 3), inten.reshape(-1), (z > 0).reshape(-1), uu.reshape(-1), vv.reshape(-1),
+                     wt.reshape(-1))
 
 
 def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
@@ -89,7 +93,8 @@ def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
     h, w = level.depth.shape
     hb, wb = h // block, w // block
     g2 = level.igrad[..., 1] ** 2 + level.igrad[..., 2] ** 2
-    score = jnp.where(level.depth > 0, g2 + 1e-3, 0.0)[: hb * block, : wb * block]
+    # trusted pixels first; the tiny floor keeps a valid pixel when a whole tile is untrusted
+    score = jnp.where(level.depth > 0, (g2 + 1e-3) * (level.weight + 1e-6), 0.0)[: hb * block, : wb * block]
     tiles = score.reshape(hb, block, wb, block).transpose(0, 2, 1, 3).reshape(hb, wb, block * block)
     k = jnp.argmax(tiles, axis=-1)
     vi = jnp.arange(hb)[:, None] * block + k // block
@@ -105,7 +110,7 @@ def gather_points(level: Level, camera: Camera, u_idx, v_idx) -> RefPoints:
     z = level.depth[vi, ui]
     uf, vf = ui.astype(jnp.float32), vi.astype(jnp.float32)
     P = backproject(camera, uf, vf, z)
-    return RefPoints(P, level.intensity[vi, ui], z > 0, uf, vf)
+    return RefPoints(P, level.intensity[vi, ui], z > 0, uf, vf, jnp.where(z > 0, level.weight[vi, ui], 0.0))
 
 
 def warp(T_cur_ref, points, camera: Camera):

@@ -113,6 +113,25 @@ def test_moving_object_ransac_robust_classic_not(dynamic_pair):
     assert iou > 0.85, iou
 
 
+def test_user_mask_and_weights_remove_the_mover(dynamic_pair):
+    """A reference mask that excludes the mover (Frame.mask, as a detector would give) makes
+    plain least squares exact; the same as a weight map; a mask of every pixel changes nothing."""
+    a, b = dynamic_pair
+    static = ~a.moving_mask
+    ref = a.frame()
+    classic = Config(method="classic")
+    masked = estimate_motion(ref._replace(mask=static), b.frame(), CAM, classic)
+    weighted = estimate_motion(ref, b.frame(), CAM, classic, weights=static.astype(np.float32))
+    t, r = _errors(masked.T_cur_ref)
+    assert t < 5.0 and r < 0.2, (t, r)   # unmasked: > 50 mm (test above)
+    np.testing.assert_array_equal(np.asarray(masked.T_cur_ref), np.asarray(weighted.T_cur_ref))
+    full = estimate_motion(ref._replace(mask=np.ones_like(static)), b.frame(), CAM, classic)
+    plain = estimate_motion(ref, b.frame(), CAM, classic)
+    np.testing.assert_array_equal(np.asarray(full.T_cur_ref), np.asarray(plain.T_cur_ref))
+    with pytest.raises(ValueError, match="mask"):
+        estimate_motion(ref._replace(mask=static[:10]), b.frame(), CAM, classic)
+
+
 def test_same_key_is_bitwise_identical(dynamic_pair):
     a, b = dynamic_pair
     cfg = Config(method="ransac")
