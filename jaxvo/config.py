@@ -31,6 +31,10 @@ class Config:
     huber_k: Huber threshold in units of the MAD scale estimate.
     max_depth: depth beyond this (metres) is ignored.
     min_inlier_ratio: below this final inlier ratio the estimate is flagged invalid.
+    min_depth_agreement, min_photometric_agreement: the estimate is also flagged invalid when
+      fewer of the overlapping pixels agree in depth, or fewer of the textured pixels that
+      agree in depth agree in luminance too (see jaxvo.odometry.TrustStats; measured with
+      experiments/failure_flag.py).
     n_points: *static*, pixels per RANSAC sample (the paper's n = 6).
     patch_radius: *static*, neighbourhood radius around each sampled pixel (1 -> 3x3).
     max_hypotheses: *static*, hard cap on k per level.
@@ -96,6 +100,8 @@ class Config:
     score_selection: str = "grid"
     consensus_weights: str = "huber"
     prior_candidate: str = "refined"
+    min_depth_agreement: Any = 0.35
+    min_photometric_agreement: Any = 0.65
 
     @classmethod
     def paper(cls, method: str = "ransac", **changes) -> "Config":
@@ -160,6 +166,8 @@ _RULES = {
     "score_selection": choice("grid", "gradient"),
     "consensus_weights": choice("binary", "huber"),
     "prior_candidate": choice("raw", "refined"),
+    "min_depth_agreement": real(0, 1),
+    "min_photometric_agreement": real(0, 1),
 }
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",

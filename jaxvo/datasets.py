@@ -142,7 +142,10 @@ def read_file_list(path) -> Tuple[np.ndarray, List[str]]:
         except ValueError:
             raise DatasetError(f"{path}:{n}: malformed line {_short(s)!r} (expected 'timestamp filename')") from None
         stamps.append(t)
-        names.append(parts[1])
+        # the rest of the line is the name when such a file exists (a name with spaces);
+        # otherwise extra columns after the first are ignored
+        rest = s.split(None, 1)[1].strip()
+        names.append(rest if rest != parts[1] and (path.parent / rest).is_file() else parts[1])
     if not stamps:
         raise DatasetError(f"{path}: no entries (only comments or empty)")
     t = np.asarray(stamps, dtype=np.float64)
@@ -155,19 +158,21 @@ def read_file_list(path) -> Tuple[np.ndarray, List[str]]:
     return t, names
 
 
-def read_pose_file(path, what: str = "trajectory") -> Tuple[np.ndarray, np.ndarray]:
+def read_pose_file(path, what: str = "trajectory", duplicates: str = "first") -> Tuple[np.ndarray, np.ndarray]:
     """Read a TUM pose file (``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments).
 
     Returns (timestamps (N,) float64 ascending, poses (N, 4, 4) float64) exactly as stored
-    (no Bonn conversion). Unsorted lines are sorted by time; of lines with the same
-    timestamp only the first is kept (the original freiburg2_desk ground truth has one such
-    duplicate). Quaternions are normalised.
+    (no Bonn conversion). Unsorted lines are sorted by time. Of lines with the same
+    timestamp, ``duplicates="first"`` keeps the first (the original freiburg2_desk ground
+    truth has one such duplicate); ``"error"`` raises naming both lines (an estimate must not
+    give one frame two poses). Quaternions are normalised.
 
     Raises DatasetError: missing file, malformed line (number of fields, non-numeric,
     non-finite, zero quaternion; with its line number), empty file.
     """
     path = Path(path)
     rows = []
+    line_of = {}
     for n, s in _data_lines(path):
         parts = s.replace(",", " ").split()
         if len(parts) != 8:
@@ -182,6 +187,10 @@ def read_pose_file(path, what: str = "trajectory") -> Tuple[np.ndarray, np.ndarr
         qn = float(np.linalg.norm(vals[4:8]))
         if qn < 1e-6:
             raise DatasetError(f"{path}:{n}: quaternion has zero norm in line {_short(s)!r}")
+        if duplicates == "error" and vals[0] in line_of:
+            raise DatasetError(f"{path}:{n}: timestamp {parts[0]} repeats line {line_of[vals[0]]} "
+                               f"(one pose per timestamp)")
+        line_of.setdefault(vals[0], n)
         rows.append(vals)
     if not rows:
         raise DatasetError(f"{path}: no poses in {what} file (only comments or empty)")

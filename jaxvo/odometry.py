@@ -48,8 +48,9 @@ class MotionEstimate(NamedTuple):
     inlier_ratio: inliers / reference pixels with valid depth at that level.
     hypotheses: (L,) int32 RANSAC hypotheses evaluated per level (index 0 = finest; 0 if not run).
     iterations: (L,) int32 LM iterations per level.
-    valid: bool, a trustworthy estimate: finite, inlier ratio >= min_inlier_ratio and
-      a well-conditioned information matrix.
+    valid: bool, a trustworthy estimate: finite, a well-conditioned information matrix,
+      inlier ratio >= min_inlier_ratio, and enough depth and photometric agreement
+      (see :class:`TrustStats`, :func:`explain_validity`).
     information: (6, 6) J^T W J / sigma^2 at the finest level (inverse covariance of a
       left perturbation of T_cur_ref, twist order (w, v)).
     residual_rms: weighted RMS photometric residual at the finest level (0-255 units).
@@ -152,7 +153,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     nw = jnp.maximum(jnp.sum(wts), 1)
     var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
     info = sol.hessian / jnp.maximum(var, 1e-6)
-    valid = _trusted(_trust_stats(ref_l, res, inl, dense.valid, info, T, config.thresh_lum), config)
+    valid = _trusted(_trust_stats(ref_l, res, inl, dense.valid, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
                           jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
 
@@ -175,35 +176,43 @@ class TrustStats(NamedTuple):
     inlier_ratio: inliers / reference pixels with valid depth (as in MotionEstimate).
     overlap: reference pixels with valid depth that land inside the current image on valid
       depth, as a fraction of the reference pixels with valid depth.
-    overlap_inlier_ratio: inliers / those overlapping pixels.
-    textured: fraction of the valid-depth reference pixels that are textured (intensity gradient
-      above thresh_lum / 4 per pixel: misplaced by 4 pixels they fail the luminance threshold).
-    textured_inlier_ratio: inliers / overlapping textured pixels; smooth areas agree with any
-      pose, the textured ones only with the right one.
+    depth_agreement: overlapping pixels whose depth residual is under thresh_depth, as a
+      fraction of the overlapping pixels (the geometry agrees; people moving lower it).
+    textured: fraction of the valid-depth reference pixels that are textured (intensity
+      gradient above thresh_lum / 6 per pixel).
+    photometric_agreement: of the textured pixels whose depth agrees, the fraction whose
+      luminance residual is under thresh_lum too. Where the geometry agrees the scene is
+      the same surface, and at the right pose its texture lands on the same texture;
+      smooth areas agree with any pose, so only textured pixels count (0 without any).
     """
     finite: jnp.ndarray
     conditioning: jnp.ndarray
     inlier_ratio: jnp.ndarray
     overlap: jnp.ndarray
-    overlap_inlier_ratio: jnp.ndarray
+    depth_agreement: jnp.ndarray
     textured: jnp.ndarray
-    textured_inlier_ratio: jnp.ndarray
+    photometric_agreement: jnp.ndarray
 
 
-def _trust_stats(ref_l, res, inl, ref_valid, info, T, thresh_lum) -> TrustStats:
+def _trust_stats(ref_l, res, inl, ref_valid, info, T, config) -> TrustStats:
     def frac(a, b):
         return jnp.sum(a) / jnp.maximum(jnp.sum(b), 1)
     eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
     finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
     g = jnp.sqrt(ref_l.igrad[..., 1] ** 2 + ref_l.igrad[..., 2] ** 2).reshape(-1)
-    textured = ref_valid & (g > 0.25 * thresh_lum)
+    textured = ref_valid & (g > config.thresh_lum / 6)
+    depth_ok = res.valid_depth & (jnp.abs(res.r_depth) < config.thresh_depth)
+    photo_ok = jnp.abs(res.r_int) < config.thresh_lum
     return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(inl, ref_valid),
-                      frac(res.valid_depth, ref_valid), frac(inl, res.valid_depth), frac(textured, ref_valid),
-                      frac(inl & textured, res.valid_depth & textured))
+                      frac(res.valid_depth, ref_valid), frac(depth_ok, res.valid_depth), frac(textured, ref_valid),
+                      frac(textured & depth_ok & photo_ok, textured & depth_ok))
 
 
 def _trusted(s: TrustStats, config: Config):
-    return s.finite & (s.conditioning > 1e-9) & (s.inlier_ratio >= config.min_inlier_ratio)
+    """The failure flag's rule (measured as a classifier by experiments/failure_flag.py)."""
+    return (s.finite & (s.conditioning > 1e-9) & (s.inlier_ratio >= config.min_inlier_ratio)
+            & (s.depth_agreement >= config.min_depth_agreement)
+            & (s.photometric_agreement >= config.min_photometric_agreement))
 
 
 @jax.jit
@@ -213,7 +222,7 @@ def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info):
     ref_l = build_pyramid(ref_int, ref_depth, L, config.max_depth)[level]
     cur_l = build_pyramid(cur_int, cur_depth, L, config.max_depth)[level]
     dense, res, inl = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
-    s = _trust_stats(ref_l, res, inl, dense.valid, info, T, config.thresh_lum)
+    s = _trust_stats(ref_l, res, inl, dense.valid, info, T, config)
     return s, _trusted(s, config)
 
 

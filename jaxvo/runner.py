@@ -24,37 +24,34 @@ __all__ = ["RunResult", "run_sequence", "load_config", "resolve_camera", "outlie
 
 
 def load_config(path=None, **overrides):
-    """A :class:`jaxvo.odometry.Config` from a JSON file of Config fields plus overrides (None = keep).
+    """A :class:`jaxvo.config.Config` from a JSON file of Config fields plus overrides (None = keep).
 
-    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value raise
-    ValueError / DatasetError naming the file.
+    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value
+    (checked by :meth:`Config.validate`: type, finiteness, range) raise ValueError /
+    DatasetError naming the file and the field.
     """
     from jaxvo.config import Config
 
-    fields = {f.name for f in dataclasses.fields(Config)}
-    values = {}
+    cfg = Config()
     if path is not None:
         p = Path(path)
         try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError:
-            raise DatasetError(f"{p}: config file not found") from None
+            data = json.loads(p.read_bytes().decode("utf-8"))
+        except UnicodeDecodeError as e:
+            raise DatasetError(f"{p}: config file is not UTF-8 text (byte {e.start})") from None
         except json.JSONDecodeError as e:
             raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno})") from None
+        except IsADirectoryError:
+            raise DatasetError(f"{p}: is a folder, expected a JSON config file") from None
+        except FileNotFoundError:
+            raise DatasetError(f"{p}: config file not found") from None
         if not isinstance(data, dict):
-            raise DatasetError(f"{p}: expected a JSON object of Config fields")
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise DatasetError(f"{p}: unknown Config field(s) {', '.join(unknown)} "
-                               f"(known: {', '.join(sorted(fields))})")
-        values.update({k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    cfg = Config(**values)
-    try:
-        cfg.validate()
-    except ValueError as e:
-        raise ValueError(f"{path}: {e}" if path is not None else str(e)) from None
-    return cfg
+            raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
+        try:
+            cfg = Config.from_dict(data)
+        except ValueError as e:
+            raise DatasetError(f"{p}: {e}") from None
+    return Config.from_dict({k: v for k, v in overrides.items() if v is not None}, base=cfg)
 
 
 def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
@@ -66,11 +63,11 @@ def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=N
     ``fx, fy, cx, cy`` (pixels) override single values.
     """
     seq_dir = Path(seq_dir)
+    info = seq_dir / "info.json"
     cam = None
     if preset is not None:
         cam = PRESETS[preset]
     else:
-        info = seq_dir / "info.json"
         if info.is_file():
             try:
                 c = json.loads(info.read_text()).get("camera")
@@ -84,6 +81,10 @@ def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=N
     over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
     if over:
         cam = dataclasses.replace(cam, **over)
+    try:
+        cam.validate()
+    except ValueError as e:
+        raise DatasetError(f"{info}: {e}" if not over and preset is None and info.is_file() else str(e)) from None
     return cam
 
 
