@@ -166,12 +166,15 @@ def main(argv=None):
     ap.add_argument("--max-rot", type=float, default=5.0, help="rotation error (deg) above which an estimate is wrong")
     ap.add_argument("--max-pairs-per-seq", type=int, default=40)
     ap.add_argument("--no-synthetic", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="a tiny run: 2 real pairs per sequence, 'tune' split only")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "failure_flag.md")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
     pairs = []
-    for split in ("tune", "held-out"):
+    if args.quick:
+        args.max_pairs_per_seq, args.no_synthetic = 2, True
+    for split in ("tune",) if args.quick else ("tune", "held-out"):
         got = real_pairs(args.max_pairs_per_seq, split) + ([] if args.no_synthetic else synthetic_pairs(split))
         pairs += [(split,) + p for p in got]
     common.log(f"[failure_flag] {len(pairs)} pairs")
