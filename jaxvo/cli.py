@@ -109,11 +109,18 @@ class _Group(click.Group):
             click.echo(f"error: {_one_line_text(e.format_message())}", err=True)
             sys.exit(2)
         except (click.Abort, KeyboardInterrupt):
+            _ignore_ctrl_c()
             click.echo("interrupted (Ctrl-C); unfinished outputs keep their .partial names", err=True)
             _exit_now(130)
         if not standalone_mode:
             return rv
         sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _ignore_ctrl_c() -> None:
+    """While we report an interrupt and leave, a second Ctrl-C must not end in a traceback."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _quiet_native_stderr() -> None:
@@ -172,10 +179,11 @@ class _CtrlC:
             if worker.is_alive():
                 worker.join(self.grace)
                 if worker.is_alive():
+                    _ignore_ctrl_c()
                     on_abandon()
                     _exit_now(130)
         finally:
-            signal.signal(signal.SIGINT, old)
+            signal.signal(signal.SIGINT, signal.SIG_IGN if self.flag.is_set() else old)
         if "error" in box:
             raise box["error"]
         return box["value"]
@@ -238,7 +246,7 @@ done and exits with code 130. Outputs that would replace or land inside an input
 (--force to allow).
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
-inliers or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
+inliers, too little depth or texture agreement, or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
 which includes JAX compilation) and frames/s after it. With groundtruth.txt it also prints
 RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long enough
 (m/s, deg/s), and ATE (m, after alignment).

@@ -314,11 +314,13 @@ def test_bonn_crowd_160_frames_end_to_end(tmp_path):
     classic = _run_and_eval(tmp_path, BONN_CROWD, "classic", "--keyframe-gap", 6)
     classic_f2f = _run_and_eval(tmp_path, BONN_CROWD, "classic")
     print("ransac", ransac, "classic", classic, "classic frame-to-frame", classic_f2f)
-    # measured (experiments/keyframes.py): ransac 0.107 m/s, 2.38 deg/s, ATE 0.093 m (seeds 1, 2:
-    # 0.117 / 0.120 m/s, ATE 0.101 / 0.088); classic with the same keyframes 0.228 m/s,
-    # 7.33 deg/s, ATE 0.168 m (102 of 159 frames fail and hold their pose); classic frame to
-    # frame (the paper's chaining) 0.724 m/s, 12.7 deg/s, ATE 0.660 m.
-    assert ransac[0] < 0.7 * classic[0] and ransac[2] < 0.75 * classic[2], (ransac, classic)
+    # measured with this test's commands (seed 0): ransac 0.097 m/s, 1.99 deg/s, ATE 0.072 m
+    # (31 of 159 frames held); classic with the same keyframes 0.128 m/s, 7.23 deg/s, ATE 0.093 m:
+    # the failure flag catches most of classic's wrong estimates (121 of 159 frames fail and
+    # hold their pose, close to standing still; with the flag before experiments/failure_flag.py,
+    # 102 held and 0.228 m/s, ATE 0.168 m); classic frame to frame (the paper's chaining)
+    # 0.724 m/s, 12.7 deg/s, ATE 0.660 m.
+    assert ransac[0] < 0.85 * classic[0] and ransac[2] < 0.9 * classic[2], (ransac, classic)
     assert ransac[1] < 0.6 * classic[1] and ransac[1] < 4.5, (ransac, classic)
     assert ransac[0] < 0.3 * classic_f2f[0] and ransac[2] < 0.3 * classic_f2f[2], (ransac, classic_f2f)
 
