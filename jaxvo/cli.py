@@ -45,7 +45,9 @@ Conventions:
   * RPE: translational error in m, rotational in deg, per delta (m/s and deg/s for
     a 1-second delta, as in TUM evaluate_rpe.py); ATE: RMSE in m after a rigid
     least-squares (Horn/Umeyama) alignment of the estimate to the ground truth.
-  * bad input gives one line 'error: ...' on stderr and exit code 2."""
+  * bad input gives one line 'error: ...' on stderr and exit code 2; Ctrl-C exit code 130.
+  * outputs are written under a .partial name and renamed when complete; an output that
+    would replace or land inside an input is refused unless --force."""
 
 #: seeds: jax.random.key takes at most a 64-bit signed integer
 SEED = click.IntRange(0, 2 ** 63 - 1)
