@@ -16,7 +16,7 @@ Writes ``keyframes.md`` and ``keyframes.json``.
 Example::
 
     python experiments/keyframes.py                      # Bonn crowd and TUM fr2_desk
-    python experiments/keyframes.py --gaps 1,6 --seeds 0,1,2 --methods classic,ransac
+    python experiments/keyframes.py --gaps 1,6,default --seeds 0,1,2 --methods classic,ransac
     python experiments/keyframes.py --max-frames 20 --out /tmp/kf.md
 """
 from __future__ import annotations
@@ -43,8 +43,9 @@ def parse_args(argv=None):
     ap.add_argument("sequences", nargs="*", help="TUM-layout sequence folders (default: "
                     + ", ".join(f"data_root()/{s}" for s in DEFAULT_SEQUENCES) + ")")
     ap.add_argument("--methods", default="classic,huber,ransac", help="comma-separated jaxvo methods")
-    ap.add_argument("--gaps", default="1,2,4,6,8",
-                    help="comma-separated keyframe max_gap values (lag = gap // 2; 1 = frame to frame)")
+    ap.add_argument("--gaps", default="1,6,default",
+                    help="comma-separated keyframe max_gap values (lag = gap // 2; 1 = frame to frame) "
+                         "and/or 'default' (jaxvo's default: segmented keyframes)")
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames per sequence")
     ap.add_argument("--seeds", default="0", help="comma-separated PRNG key seeds for ransac (default 0)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "keyframes.md"),
@@ -62,11 +63,27 @@ def _ints(text: str, what: str):
     return values
 
 
-def _policy(gap: int):
-    if gap < 1:
-        raise SystemExit(f"--gaps: a keyframe gap must be >= 1, got {gap}")
-    # keyframes(1) is max_gap 1, lag 0: the paper's frame-to-frame chaining
-    return ("frame to frame" if gap == 1 else f"keyframes {gap}"), TrackConfig.keyframes(gap)
+def _policies(text: str):
+    """(gap, name, TrackConfig) per comma-separated token: a keyframe gap (1 = frame to frame,
+    the paper's chaining; keyframes without segmentation) or "default" (jaxvo's default
+    policy: keyframes with the persistent static/dynamic segmentation)."""
+    out = []
+    for token in [t.strip() for t in text.split(",") if t.strip()]:
+        if token == "default":
+            p = TrackConfig()
+            out.append((p.max_gap, "default (segmented keyframes)", p))
+            continue
+        try:
+            gap = int(token)
+        except ValueError:
+            raise SystemExit(f"--gaps: expected integers or 'default', got {token!r}") from None
+        if gap < 1:
+            raise SystemExit(f"--gaps: a keyframe gap must be >= 1, got {gap}")
+        # keyframes(1) is max_gap 1, lag 0: the paper's frame-to-frame chaining
+        out.append((gap, "frame to frame" if gap == 1 else f"keyframes {gap}", TrackConfig.keyframes(gap)))
+    if not out:
+        raise SystemExit("--gaps: empty list")
+    return out
 
 
 def _row(seq, name, policy_name, relative, valid=None, seconds=None, gap=None, seed=None):
@@ -83,8 +100,8 @@ def main(argv=None) -> Path:
     if not paths:
         raise SystemExit(common.missing_data_message())
     methods = [m for m in common.parse_methods(args.methods) if not common.is_peer(m)]
-    gaps, seeds = _ints(args.gaps, "gaps"), _ints(args.seeds, "seeds")
-    policies = [(gap, *_policy(gap)) for gap in gaps]
+    seeds = _ints(args.seeds, "seeds")
+    policies = _policies(args.gaps)
     rows = []
     for path in paths:
         seq = common.open_sequence(path, args.max_frames)

@@ -179,25 +179,30 @@ jax.tree_util.register_dataclass(
 
 
 class TrackConfig(NamedTuple):
-    """How :func:`track` chooses each frame's reference and treats failed estimates (host-side policy).
+    """How :func:`jaxvo.odometry.track` (and :class:`jaxvo.odometry.Odometry`) chooses each
+    frame's reference, keeps its static/dynamic segmentation, and treats failed estimates
+    (host-side policy).
 
     Frame j is estimated against a reference frame k < j (a keyframe), starting from
-    frame j-1's pose relative to k. After frame j, once ``j - k >= max_gap`` the
-    reference moves to frame ``max(j - lag, k + 1)``, whose pose is already known.
-    ``max_gap=1, lag=0`` (the default) is the paper's frame-to-frame chaining;
-    :meth:`keyframes` (``max_gap=6, lag=3``) is what jaxvo recommends where people or
-    objects move through the picture (measured with ``experiments/keyframes.py``: on Bonn
-    crowd ransac scores alike with gaps 6 and 8, and the shorter gap keeps more frames
-    tracked by the weaker methods).
+    frame j-1's pose relative to k. After frame j the reference moves once
+    ``j - k >= max_gap``, or earlier when the estimate says the reference no longer
+    serves (its inlier ratio over trusted reference pixels fell under ``switch_ratio``,
+    or the camera moved more than ``switch_baseline`` metres / ``switch_deg`` degrees
+    from it). It moves to the latest successful frame at least ``lag`` back.
+
+    The default is jaxvo's robust tracking: keyframes (gap 6, lag 3) with a
+    segmentation that persists across frames (``segment``, see
+    :mod:`jaxvo.segmentation`). :meth:`frame_to_frame` is the paper's chaining
+    (no segmentation), :meth:`keyframes` the keyframes alone.
 
     Why keyframes: between consecutive frames (33 ms) people who walk at ~1 m/s move
     ~3 cm, under the 5 cm depth threshold, so no inlier test can tell them from the
     static scene and every estimator partly follows them. Against a reference a few
-    frames back they have moved far more than the camera, fail the thresholds, and
-    RANSAC's consensus is the static background. ``lag`` keeps the reference at least
-    ``lag`` frames back after a switch, and because the reference's pose came from an
-    estimate over a long baseline, errors of the short-baseline estimates do not
-    accumulate.
+    frames back they have moved far more than the camera and fail the thresholds.
+    Why the segmentation: where people cover much of the picture for seconds, the
+    frames around the reference have seen the room behind them; a reference pixel
+    whose 3-D point lies in space another frame saw through is dynamic, and that
+    evidence is kept and carried from reference to reference.
 
     max_gap: frames between the reference and the current frame before the reference
       moves (>= 1).
@@ -207,23 +212,40 @@ class TrackConfig(NamedTuple):
       least ``lag`` back, or stays where it is.
     hold_invalid: an estimate that is not ``valid`` or implies an implausible step from the
       previous frame (beyond ``max_step`` metres or ``max_step_deg`` degrees) is replaced by
-      the previous frame's pose (constant position) and reported invalid.
+      the previous frame's pose (constant position) and reported invalid. 0.05 m and 5 deg
+      per frame (1.5 m/s, 150 deg/s at 30 Hz) is beyond hand-held motion; the paper's chaining
+      (:meth:`frame_to_frame`) keeps jaxvo's earlier 0.1 m / 10 deg.
+    segment: keep the static/dynamic segmentation of the reference and pass it to the
+      estimator as per-pixel trust (``estimate_motion(weights=)``).
+    switch_ratio: move the reference early when the estimate's inlier ratio over trusted
+      reference pixels falls under this (0 = never).
+    switch_baseline, switch_deg: move the reference early once the current frame is this
+      far (metres, degrees) from it: overlap shrinks with the baseline.
+    history: how many earlier frames (at offsets 2, 4, 8, ...) vote on a new reference's
+      segmentation, beside the frames between it and the current frame.
     """
-    max_gap: int = 1
-    lag: int = 0
+    max_gap: int = 6
+    lag: int = 3
     hold_invalid: bool = True
-    max_step: float = 0.1
-    max_step_deg: float = 10.0
+    max_step: float = 0.05
+    max_step_deg: float = 5.0
+    segment: bool = True
+    switch_ratio: float = 0.5
+    switch_baseline: float = 0.15
+    switch_deg: float = 8.0
+    history: int = 4
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
-        """The paper's chaining: every frame against the one before it (the default)."""
-        return cls(max_gap=1, lag=0, **changes)
+        """The paper's chaining: every frame against the one before it, no segmentation."""
+        return cls(**{"max_gap": 1, "lag": 0, "segment": False, "max_step": 0.1, "max_step_deg": 10.0, **changes})
 
     @classmethod
     def keyframes(cls, max_gap: int = 6, lag: Optional[int] = None, **changes) -> "TrackConfig":
-        """References up to ``max_gap`` frames back, ``lag`` (default max_gap // 2) after a move."""
-        return cls(max_gap=max_gap, lag=max_gap // 2 if lag is None else lag, **changes)
+        """References up to ``max_gap`` frames back, ``lag`` (default max_gap // 2) after a move;
+        no segmentation unless ``segment=True`` is passed."""
+        return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
+                      "max_step": 0.1, "max_step_deg": 10.0, **changes})
 
     def validate(self) -> None:
         """Raise ValueError naming the first field that breaks its rule (see ``_TRACK_RULES``)."""
@@ -236,4 +258,9 @@ _TRACK_RULES = {
     "hold_invalid": flag(),
     "max_step": real(0, lo_open=True),
     "max_step_deg": real(0, 180, lo_open=True),
+    "segment": flag(),
+    "switch_ratio": real(0, 1, hi_open=True),
+    "switch_baseline": real(0, lo_open=True),
+    "switch_deg": real(0, 180, lo_open=True),
+    "history": integer(0, 6),
 }

@@ -19,13 +19,14 @@ config); numeric config fields are traced, so ``jax.vmap`` over a field of
 """
 from __future__ import annotations
 
+import functools
 from typing import Iterable, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo import geometry
+from jaxvo import geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
@@ -34,7 +35,8 @@ from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
 from jaxvo.solvers import irls, solve_pose
 
-__all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "track", "Track", "TrackConfig", "TrackStep", "METHODS", "trace_count"]
+__all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "Odometry", "track", "Track",
+           "TrackConfig", "TrackStep", "METHODS", "trace_count"]
 
 class MotionEstimate(NamedTuple):
     """Result of :func:`estimate_motion`.
@@ -333,19 +335,23 @@ class Track(NamedTuple):
 
 
 class TrackStep(NamedTuple):
-    """What :func:`track` passes to its callback after each frame.
+    """What :class:`Odometry` returns for each frame and :func:`track` passes to its callback.
 
-    frame: index of the frame just estimated (>= 1). reference: index of the frame it was
-    estimated against (``estimate.inlier_mask`` lies on that frame's pixels).
-    estimate: the :class:`MotionEstimate` (T_cur_ref = T_frame_reference).
+    frame: index of the frame just added. reference: index of the frame it was
+    estimated against (``estimate.inlier_mask`` and ``static_mask`` lie on that frame's
+    pixels); -1 for the first frame. estimate: the :class:`MotionEstimate`
+    (T_cur_ref = T_frame_reference), None for the first frame.
     T_world_cur: (4, 4) float64 pose given to the frame. valid: False if the estimate failed
     and the pose was held (see :class:`TrackConfig`).
+    static_mask: (H, W) bool, the reference pixels the segmentation trusted as static for
+    this estimate (all True without segmentation).
     """
     frame: int
     reference: int
-    estimate: MotionEstimate
+    estimate: Optional[MotionEstimate]
     T_world_cur: np.ndarray
     valid: bool
+    static_mask: Optional[np.ndarray] = None
 
 
 def _rigid(T) -> np.ndarray:
@@ -357,68 +363,199 @@ def _rigid(T) -> np.ndarray:
     return T
 
 
-def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
-          T_world_first=None, callback=None, policy: Optional[TrackConfig] = None) -> Track:
-    """Run :func:`estimate_motion` along a sequence and chain the results into poses.
+@jax.jit
+def _map_depth(depth, max_depth):
+    return segmentation.map_depth(depth, max_depth)
 
-    Frames may be any iterable (e.g. a lazy sequence); only the last ``policy.max_gap``
-    frames are kept. Frame j (j >= 1) is estimated against a reference frame chosen by
-    ``policy`` (default :class:`TrackConfig`: frame to frame, the paper's chaining;
-    ``TrackConfig.keyframes()`` for dynamic scenes) with key
-    ``jax.random.fold_in(key, j - 1)``. Poses accumulate on the host in float64:
-    ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
-    ``callback(step)`` is called with a :class:`TrackStep` after each frame (e.g. to write
-    the trajectory as it grows). The estimator compiles once; each result is pulled to
-    the host before the next frame is dispatched, because the next reference and initial
-    pose depend on it (measured: overlapping the two saved < 2 % per frame).
+
+@functools.partial(jax.jit, static_argnames=("shape",))
+def _trust(L, shape):
+    return segmentation.upsample(segmentation.static_weight(L), shape)
+
+
+@jax.jit
+def _static_inlier_ratio(inlier_mask, valid_mask, weights):
+    """Inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5)."""
+    trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
+    return jnp.sum(inlier_mask & trusted) / jnp.maximum(jnp.sum(valid_mask & trusted), 1)
+
+
+@jax.jit
+def _update_map(L, ref_md, cur_md, T_cur_ref, camera, params):
+    return segmentation.add_votes(L, ref_md, cur_md[None], T_cur_ref[None], jnp.ones(1, bool), camera, params)
+
+
+@jax.jit
+def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params):
+    L = segmentation.propagate(L_old, old_md, new_md, T_old_new, camera, params)
+    L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
+    return segmentation.coherent_regions(L, new_md, camera, params)
+
+
+# views that vote on a new reference's segmentation: a fixed number so that the map
+# update compiles once (missing views are padding with valid = False)
+_VIEWS = 12
+
+
+class Odometry:
+    """Streaming odometry: push frames one at a time, get each frame's pose at once.
+
+    ``odo = Odometry(camera, config, key); step = odo.add(frame)``: ``step.T_world_cur``
+    is the frame's camera-to-world pose (float64), ``odo.poses`` all poses so far. It holds
+    what must persist between frames: the recent frames that can still serve as reference,
+    the reference choice (:class:`TrackConfig`), and the reference's static/dynamic
+    segmentation (:mod:`jaxvo.segmentation`, a log-odds map at half resolution), which is
+    carried from reference to reference with the estimated motion and updated from every
+    estimate. :func:`track` and ``jaxvo run`` are loops over :meth:`add`.
+
+    Frame j (j >= 1) is estimated with key ``jax.random.fold_in(key, j - 1)``; the same key
+    and frames give bitwise the same poses. Each result is pulled to the host before the
+    next frame (the next reference and initial pose depend on it).
     """
-    config = _checked_settings(config, camera)
-    policy = TrackConfig() if policy is None else policy
-    if not isinstance(policy, TrackConfig):
-        raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(policy).__name__}")
-    policy.validate()
-    key = _checked_key(key)
-    pose = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
-    poses, ratios, valids, refs = [pose], [], [], []
-    it = iter(frames)
-    try:
-        first = next(it)
-    except StopIteration:
-        raise ValueError("track needs at least one frame") from None
-    window = {0: first}           # frames that may still serve as reference
-    ref = 0
-    max_step_rad = np.radians(policy.max_step_deg)
 
-    for j, frame in enumerate(it, start=1):
-        window[j] = frame
+    def __init__(self, camera: Camera, config: Optional[Config] = None, key=None, policy: Optional[TrackConfig] = None,
+                 T_world_first=None, segment_params: Optional[segmentation.SegmentParams] = None):
+        self.camera = camera
+        self.config = _checked_settings(config, camera)
+        self.policy = TrackConfig() if policy is None else policy
+        if not isinstance(self.policy, TrackConfig):
+            raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
+        self.policy.validate()
+        self.key = _checked_key(key)
+        self.params = segmentation.SegmentParams() if segment_params is None else segment_params
+        self._map_cam = camera.at_level(segmentation.MAP_LEVEL)
+        self._first = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
+        self.poses: list = []
+        self.valid: list = []          # per frame >= 1: its estimate succeeded
+        self.inlier_ratio: list = []
+        self.references: list = []
+        self._frames: dict = {}         # index -> Frame that may still serve as reference
+        self._depths: dict = {}         # index -> map-level depth, for the segmentation's votes
+        self._ref = 0
+        self._L = None                  # dynamic log-odds of the reference, map level
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def reference(self) -> int:
+        """Index of the frame the next frame will be estimated against."""
+        return self._ref
+
+    def add(self, frame: Frame) -> TrackStep:
+        """Add the next frame; returns its :class:`TrackStep` (pose, estimate, reference)."""
+        j = len(self.poses)
+        self._frames[j] = frame
+        if self.policy.segment:
+            self._depths[j] = _map_depth(jnp.asarray(frame.depth, jnp.float32), self.config.max_depth)
+        if j == 0:
+            self.poses.append(self._first)
+            if self.policy.segment:
+                self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
+            return TrackStep(0, -1, None, self._first, True, None)
+        policy, ref, poses = self.policy, self._ref, self.poses
         T_ref_prev = geometry.inverse(poses[ref]) @ poses[j - 1]
-        est = estimate_motion(window[ref], frame, camera, config, jax.random.fold_in(key, j - 1),
-                              init=geometry.inverse(T_ref_prev))
-        T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))  # one transfer
+        weights = _trust(self._L, tuple(frame.depth.shape)) if policy.segment else None
+        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, jax.random.fold_in(self.key, j - 1),
+                              init=geometry.inverse(T_ref_prev), weights=weights)
+        if policy.segment:
+            ratio_static = _static_inlier_ratio(est.inlier_mask, est.valid_mask, weights)
+            T, ratio, ok, ratio_static = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid, ratio_static))
+        else:
+            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))  # one transfer
+            ratio_static = ratio
         T = _rigid(T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         if valid:
             step = T @ T_ref_prev                          # T_cur_prev
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
-                     and geometry.rotation_angle(step[:3, :3]) <= max_step_rad)
-        pose_j = poses[j - 1].copy() if not valid and policy.hold_invalid else poses[ref] @ geometry.inverse(T)
-        poses.append(pose_j)
-        ratios.append(float(ratio))
-        valids.append(valid)
-        refs.append(ref)
-        if callback is not None:
-            callback(TrackStep(j, ref, est, pose_j, valid))
-        if j - ref >= policy.max_gap:
+                     and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg))
+        pose = poses[j - 1].copy() if not valid and policy.hold_invalid else poses[ref] @ geometry.inverse(T)
+        poses.append(pose)
+        self.valid.append(valid)
+        self.inlier_ratio.append(float(ratio))
+        self.references.append(ref)
+        static_mask = None
+        if policy.segment:
+            static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
+            if valid:  # the current frame's view of the reference, at the estimated pose
+                self._L = _update_map(self._L, self._depths[ref], self._depths[j], jnp.asarray(T, jnp.float32),
+                                      self._map_cam, self.params)
+        result = TrackStep(j, ref, est, pose, valid, static_mask)
+        self._maybe_switch(j, T, float(ratio_static))
+        return result
+
+    def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float) -> None:
+        policy, ref = self.policy, self._ref
+        far = (np.linalg.norm(T_cur_ref[:3, 3]) > policy.switch_baseline
+               or geometry.rotation_angle(T_cur_ref[:3, :3]) > np.radians(policy.switch_deg))
+        if j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
             # the latest frame at least `lag` back whose own estimate succeeded: a failed
             # (held) frame has no trustworthy pose and must not become a reference
-            good = [i for i in range(ref + 1, j - policy.lag + 1) if valids[i - 1]]
+            good = [i for i in range(ref + 1, j - policy.lag + 1) if self.valid[i - 1]]
             if good:
-                ref = good[-1]
+                self._set_reference(good[-1], j)
             elif j - ref >= 4 * policy.max_gap:
-                ref = j - policy.lag  # lost for long: restart from the held poses
-        for old in [i for i in window if i < ref]:
-            del window[old]
-    P = np.stack(poses)
-    rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
-        else np.zeros((0, 4, 4))
-    return Track(P, rel, np.asarray(ratios), np.asarray(valids, bool), np.asarray(refs, int))
+                self._set_reference(j - policy.lag, j)  # lost for long: restart from the held poses
+        keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
+        for old in [i for i in self._frames if i < self._ref]:
+            del self._frames[old]
+        for old in [i for i in self._depths if i < keep_depth]:
+            del self._depths[old]
+
+    def _set_reference(self, new: int, j: int) -> None:
+        old = self._ref
+        self._ref = new
+        if not self.policy.segment:
+            return
+        P = self.poses
+        # voters: earlier frames at offsets 2, 4, 8, ... and every frame after the new
+        # reference up to the current one (all with successful estimates)
+        earlier = [new - (2 << k) for k in range(self.policy.history)]
+        later = list(range(new + 1, j + 1))
+        voters = [i for i in later[::-1] + earlier
+                  if i in self._depths and i != new and (i == 0 or self.valid[i - 1])][:_VIEWS]
+        shape = self._depths[new].shape
+        mds = np.zeros((_VIEWS,) + shape, np.float32)
+        Ts = np.tile(np.eye(4, dtype=np.float32), (_VIEWS, 1, 1))
+        ok = np.zeros(_VIEWS, bool)
+        for k, i in enumerate(voters):
+            mds[k] = np.asarray(self._depths[i])
+            Ts[k] = geometry.inverse(P[i]) @ P[new]
+            ok[k] = True
+        T_old_new = (geometry.inverse(P[old]) @ P[new]).astype(np.float32)
+        self._L = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
+                                     self._map_cam, self.params)
+
+    def result(self) -> "Track":
+        """The :class:`Track` of the frames added so far."""
+        P = np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
+        rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
+            else np.zeros((0, 4, 4))
+        return Track(P, rel, np.asarray(self.inlier_ratio), np.asarray(self.valid, bool),
+                     np.asarray(self.references, int))
+
+
+def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
+          T_world_first=None, callback=None, policy: Optional[TrackConfig] = None) -> Track:
+    """Run the odometry along a sequence: a loop of :meth:`Odometry.add` over ``frames``.
+
+    Frames may be any iterable (e.g. a lazy sequence); only the frames that may still serve
+    as reference are kept. ``policy`` (default :class:`TrackConfig`: keyframes with the
+    persistent static/dynamic segmentation; ``TrackConfig.frame_to_frame()`` is the paper's
+    chaining) chooses the references. Frame j is estimated with key
+    ``jax.random.fold_in(key, j - 1)``. Poses accumulate on the host in float64:
+    ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
+    ``callback(step)`` is called with a :class:`TrackStep` after each frame j >= 1 (e.g. to
+    write the trajectory as it grows).
+    """
+    odo = Odometry(camera, config, key, policy, T_world_first)
+    n = 0
+    for frame in frames:
+        step = odo.add(frame)
+        n += 1
+        if step.frame > 0 and callback is not None:
+            callback(step)
+    if n == 0:
+        raise ValueError("track needs at least one frame")
+    return odo.result()
