@@ -21,18 +21,18 @@ from jaxvo import geometry
 from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
 from jaxvo.frame import Frame, make_frame
 from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, TrackConfig, TrackStep, estimate_motion, track
-from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.datasets import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
 from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.metrics import ate, mask_scores, rpe
-from jaxvo.runner import RunResult, load_config, resolve_camera, run_sequence
+from jaxvo.runner import RunResult, load_config, load_sequence, run_sequence
 from jaxvo.evaluation import evaluate, trajectory_errors
 
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
     "Frame", "make_frame", "METHODS", "Config", "MotionEstimate", "Track", "TrackConfig", "TrackStep",
     "estimate_motion", "track",
-    "DatasetError", "TumSequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
+    "DatasetError", "TumSequence", "IclNuimSequence", "RedwoodSequence", "open_sequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
     "rpe", "ate", "mask_scores",
-    "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "trajectory_errors",
+    "RunResult", "run_sequence", "load_config", "load_sequence", "evaluate", "trajectory_errors",
 ]
 __version__ = "0.1.0"

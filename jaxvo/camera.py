@@ -22,7 +22,7 @@ from jaxvo.validation import check_fields, integer, real
 
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
-    "camera_for_sequence", "backproject", "project",
+    "camera_for_sequence", "camera_for_size", "backproject", "project",
 ]
 
 
@@ -97,6 +97,16 @@ def camera_for_sequence(name: str) -> Camera:
         if f"freiburg{i}" in n or f"fr{i}" in n:
             return cam
     return DEFAULT
+
+
+def camera_for_size(base: Camera, width: int, height: int) -> Camera:
+    """``base`` scaled to a ``width`` x ``height`` image: the focal lengths times
+    min(width / base.width, height / base.height) (the field of view is at least base's in
+    both directions), the principal point at the image centre. Exact pyramid sizes of a
+    centred camera give the same intrinsics as :meth:`Camera.at_level` (DEFAULT at 320x240
+    is DEFAULT.at_level(1))."""
+    s = min(width / base.width, height / base.height)
+    return Camera(float(base.fx) * s, float(base.fy) * s, (width - 1) / 2.0, (height - 1) / 2.0, int(width), int(height))
 
 
 def backproject(camera: Camera, u, v, z):

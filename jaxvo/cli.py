@@ -1,4 +1,4 @@
-"""The ``jaxvo`` command line: ``run``, ``eval``, ``synth``, ``augment``, ``demo``, ``map``.
+"""The ``jaxvo`` command line: ``run``, ``eval``, ``gt``, ``synth``, ``augment``, ``demo``, ``map``.
 
 Argument parsing and printing only: the work is done by the library (:mod:`jaxvo.runner`,
 :mod:`jaxvo.evaluation`, :mod:`jaxvo.demo`, :mod:`jaxvo.synthetic`, :mod:`jaxvo.mapping`).
@@ -22,12 +22,12 @@ from typing import Callable, Optional
 import click
 import numpy as np
 
-from jaxvo.camera import DEFAULT, PRESETS
-from jaxvo.datasets import DatasetError, TumSequence
-from jaxvo.demo import SIZES, fmt, progress_bar, run_demo
+from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
+from jaxvo.datasets import DatasetError
+from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
 from jaxvo.outputs import check_output, check_output_folder, finish, partial_path
-from jaxvo.runner import RunResult, load_config, resolve_camera, run_sequence
+from jaxvo.runner import RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence
 
 # run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
 __all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
@@ -200,18 +200,36 @@ def _pose_count(path) -> int:
 
 # ----------------------------------------------------------------------------- helpers
 
-def track_policy(gap: int = 1, lag: Optional[int] = None):
-    """:class:`jaxvo.odometry.TrackConfig` from the CLI's --keyframe-gap / --keyframe-lag (lag
-    defaults to gap // 2); a bad combination raises ValueError naming the options."""
-    from jaxvo.odometry import TrackConfig
+def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
+                 segment: Optional[bool] = None):
+    """:class:`jaxvo.odometry.TrackConfig` from the CLI's options on top of ``base`` (default
+    ``TrackConfig()``, jaxvo's segmented keyframes): ``--frame-to-frame`` (the paper's chaining),
+    ``--keyframe-gap`` / ``--keyframe-lag`` (lag defaults to gap // 2; None keeps base's),
+    ``--segment/--no-segment``. A bad combination raises ValueError naming the options."""
+    from jaxvo.config import TrackConfig
 
-    policy = TrackConfig(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
+    base = TrackConfig() if base is None else base
+    if frame_to_frame:
+        base = TrackConfig.frame_to_frame()
+    if gap is None:
+        policy = base if lag is None else base._replace(lag=int(lag))
+    else:
+        policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
+    if segment is not None:
+        policy = policy._replace(segment=bool(segment))
     try:
         policy.validate()
     except ValueError:
         raise ValueError(f"--keyframe-lag {policy.lag} must be smaller than --keyframe-gap {policy.max_gap}") \
             from None
     return policy
+
+
+def _size_option(ctx, param, value):
+    try:
+        return parse_size(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e).split(": ", 1)[-1]) from None
 
 
 # ----------------------------------------------------------------------------- the group
@@ -225,6 +243,7 @@ def track_policy(gap: int = 1, lag: Optional[int] = None):
   jaxvo synth seq2 OUT                # write a synthetic sequence (TUM layout + masks/)
   jaxvo augment REAL_SEQ OUT          # add synthetic moving persons to a real sequence
   jaxvo map SEQ traj.txt map.ply      # coloured 3-D point cloud (moving points green)
+  jaxvo gt SEQ -o gt.txt              # ground truth as camera poses (for evo)
 
 {CONVENTIONS}
 """)
@@ -237,14 +256,23 @@ def main():
 
 @main.command("run", help=f"""Track a sequence and write its trajectory.
 
-SEQUENCE_DIR is a folder in the TUM RGB-D layout (rgb.txt, depth.txt, rgb/, depth/ with
-16-bit depth PNGs = metres x 5000, optional groundtruth.txt); TUM, Bonn RGB-D Dynamic and
-jaxvo synthetic sequences all work. Colour and depth are associated by nearest timestamp
-(at most --max-dt seconds apart). The trajectory is written and flushed one line per frame
-to OUT.partial while the run goes on (the first frame at the identity) and renamed to OUT when
-complete, so a run that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in
-OUT.partial and never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was
-done and exits with code 130. Outputs that would replace or land inside an input are refused
+SEQUENCE_DIR is an RGB-D sequence folder: the TUM RGB-D layout (rgb.txt, depth.txt, rgb/,
+depth/ with 16-bit depth PNGs = metres x 5000, optional groundtruth.txt; TUM, Bonn RGB-D
+Dynamic, ETH3D SLAM with its calibration.txt, jaxvo synthetic), ICL-NUIM (associations.txt)
+or Redwood / Open3D (color/ and depth/ folders, depth in millimetres). Colour and depth are
+associated by nearest timestamp (at most --max-dt seconds apart). Image size comes from the
+images; intrinsics from --camera / --fx ..., else the folder's calibration file, else the
+preset for the folder name (scaled to the image size: a guess, printed as such). Depth whose
+median is outside 0.2-10 m (or under 0.7 m with the layout's default scale: millimetres read
+as 1/5000 m) stops the run with the --depth-scale to pass.
+
+The trajectory file starts with '#' lines naming jaxvo's version, the method, seed,
+full config and keyframe policy (JSON) and the reader's settings (jaxvo run SEQ --config
+TRAJ reruns it bitwise); it is written and flushed one line per frame to OUT.partial while
+the run goes on (the first frame at the identity) and renamed to OUT when complete, so a run
+that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in OUT.partial and
+never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was done and
+exits with code 130. Outputs that would replace or land inside an input are refused
 (--force to allow).
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
@@ -269,8 +297,10 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="Index of the first (associated) frame to use.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
-              help="JSON object of jaxvo.odometry.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, "
-                   "\"thresh_lum\": 30, \"blocks\": [4, 2, 1, 1]}); the options below override it.")
+              help="JSON object of jaxvo.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, \"thresh_lum\": 30, "
+                   "\"blocks\": [4, 2, 1, 1]}), or a trajectory file written by jaxvo run: its '#' header gives "
+                   "the config, seed, keyframe policy, frames, depth scale and intrinsics, so the run is "
+                   "reproduced bitwise. Options given on the command line override it.")
 @click.option("--thresh-lum", type=POSITIVE, default=None,
               help="Inlier threshold on |luminance residual|, 0-255 units. [default: 30]")
 @click.option("--thresh-depth", type=POSITIVE, default=None,
@@ -283,42 +313,89 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
                    "inlier) at full image size into this folder, named by the REFERENCE frame's timestamp "
                    "(the mask lives on the reference image's pixels), e.g. 1311868164.363181.png.")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: the folder's info.json, else from the folder name: "
-                   "freiburg1/2/3 -> fr1/fr2/fr3, rgbd_bonn_* -> bonn, otherwise default (525, 525, 319.5, 239.5)]")
+              help="Intrinsics preset (640x480). [default: the folder's calibration.txt (ETH3D), "
+                   "camera_intrinsic.json (Open3D) or info.json (jaxvo), else from the folder name: "
+                   "freiburg1/2/3 -> fr1/fr2/fr3, rgbd_bonn_* -> bonn, otherwise default (525, 525, 319.5, 239.5), "
+                   "scaled to the image size]")
+@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
+                   "millimetres (Open3D, RealSense, Redwood). [default: the layout's]")
+@click.option("--mask-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder of user masks, one 8-bit PNG per colour frame named like the colour image (or "
+                   "<timestamp>.png): nonzero = the pixel may be used, 0 = ignore it (e.g. a person detector's "
+                   "people). A frame's mask applies where it is the reference; frames without one use every "
+                   "pixel. jaxvo's own outlier decision still runs on the pixels left.")
 @click.option("--fx", type=float, default=None, help="Override the focal length fx (pixels).")
 @click.option("--fy", type=float, default=None, help="Override the focal length fy (pixels).")
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
 @click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
-@click.option("--keyframe-gap", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Each frame is estimated against a reference (keyframe) up to this many frames back; "
-                   "1 = frame to frame, the paper's chaining. 6 is much better where people walk "
-                   "through the picture (see jaxvo.TrackConfig).")
+@click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
+              help="Each frame is estimated against a reference (keyframe) up to this many frames back "
+                   "(earlier when the estimate says the reference no longer serves) [default: 6]; "
+                   "1 = frame to frame (see jaxvo.TrackConfig).")
 @click.option("--keyframe-lag", type=click.IntRange(min=0), default=None,
               help="After the reference moves it is this many frames behind the current one "
                    "[default: half of --keyframe-gap].")
+@click.option("--segment/--no-segment", default=None,
+              help="Keep a static/dynamic segmentation across frames (free-space votes of earlier and "
+                   "later frames, carried from reference to reference) and trust only static pixels "
+                   "[default: on, off with --frame-to-frame].")
+@click.option("--frame-to-frame", is_flag=True,
+              help="The paper's chaining: every frame against the previous one, no segmentation. With "
+                   "--config '{\"prior_candidate\": \"raw\", ...}' or --paper, the published algorithm.")
+@click.option("--paper", is_flag=True,
+              help="The seed paper's algorithm as published: jaxvo.Config.paper(method) and "
+                   "--frame-to-frame.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @FORCE
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
-            finest_level, save_masks, camera_preset, fx, fy, cx, cy, max_dt, keyframe_gap, keyframe_lag,
-            no_progress, force):
+            finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
+            keyframe_lag, segment, frame_to_frame, paper, no_progress, force):
+    from jaxvo.config import TrackConfig
+
+    settings = read_run_settings(config_file) if config_file is not None else {}
+    ctx = click.get_current_context()
+
+    def default(name):  # not given on the command line: a trajectory header's value may take its place
+        return ctx.get_parameter_source(name) == click.core.ParameterSource.DEFAULT
+
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
-    policy = track_policy(keyframe_gap, keyframe_lag)
-    if not Path(sequence_dir).exists():
-        raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
-    check_output(out, [sequence_dir, config_file], force, "--out")
+    if "seed" in settings and default("seed"):
+        seed = int(settings["seed"])
+    try:
+        base = TrackConfig.from_json(settings["track"]) if "track" in settings else None
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{config_file}: '# track:' header: {e}") from None
+    if paper:
+        from jaxvo.config import Config
+        config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
+                              finest_level=config.finest_level)
+    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment)
+    sq = settings.get("sequence") or {}
+    if sq:
+        start = sq.get("start", start) if default("start") else start
+        max_frames = sq.get("frames", max_frames) if default("max_frames") else max_frames
+        max_dt = sq.get("max_dt", max_dt) if default("max_dt") else max_dt
+        depth_scale = sq.get("depth_scale") if depth_scale is None else depth_scale
+        mask_dir = sq.get("mask_dir") if mask_dir is None else mask_dir
+        c = sq.get("camera")
+        if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4 and isinstance(c, dict):
+            fx, fy, cx, cy = c.get("fx"), c.get("fy"), c.get("cx"), c.get("cy")
+    check_output(out, [sequence_dir, config_file, mask_dir], force, "--out")
     if save_masks is not None:
-        check_output(save_masks, [sequence_dir, config_file], force, "--save-masks")
-    cam = resolve_camera(sequence_dir, camera_preset, fx, fy, cx, cy)
-    seq = TumSequence(sequence_dir, camera=cam, max_dt=max_dt, start=start, max_frames=max_frames)
+        check_output(save_masks, [sequence_dir, config_file, mask_dir], force, "--save-masks")
+    seq = load_sequence(sequence_dir, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
+                        start=start, max_frames=max_frames, mask_dir=mask_dir)
     if len(seq) < 2:
         raise DatasetError(f"{sequence_dir}: only {len(seq)} frame(s) to use, need at least 2")
     seq.check(1)                 # a bad first image is reported before compiling
     gt = seq.groundtruth         # and so is ground truth that does not cover the frames
-    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r}", err=True)
+    click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
+               f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}", err=True)
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     # the trajectory grows, flushed line by line, under a .partial name; it gets its name when complete
     partial = partial_path(out)
@@ -504,8 +581,9 @@ work on it unchanged.
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frames", type=click.IntRange(min=2), default=300, show_default=True, help="Number of frames (30 Hz).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the scene, textures and motions.")
-@click.option("--size", type=click.Choice(list(SIZES)), default="640x480", show_default=True,
-              help="Image size; intrinsics are the default 525/319.5/239.5 camera scaled to it.")
+@click.option("--size", callback=_size_option, default="640x480", show_default=True,
+              help="Image size WIDTHxHEIGHT (e.g. 640x480, 320x240, 424x240, 848x480); intrinsics are the "
+                   "default 525/319.5/239.5 camera scaled to it (jaxvo.camera.camera_for_size).")
 @click.option("--sensor/--no-sensor", default=False, show_default=True,
               help="Kinect-like sensor effects (depth noise ~Z^2, quantisation, missing depth at edges and "
                    "beyond 4 m, intensity noise, exposure changes).")
@@ -516,7 +594,7 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress, force):
     from jaxvo.synthetic import SensorModel, generate
 
     check_output_folder(out_dir, [], force)
-    cam = DEFAULT.at_level(SIZES[size])
+    cam = camera_for_size(DEFAULT, *size)
     tmp = partial_path(out_dir, fresh=True)
     pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
@@ -526,7 +604,7 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress, force):
         if pbar is not None:
             pbar.close()
     out = finish(tmp, out_dir)
-    click.echo(f"wrote {frames} frames of {name} ({size}, seed {seed}) to {out}")
+    click.echo(f"wrote {frames} frames of {name} ({size[0]}x{size[1]}, seed {seed}) to {out}")
 
 
 @main.command("augment", help=f"""Composite synthetic moving persons into a real static sequence.
@@ -614,7 +692,8 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
 @click.option("--sequence", "seq_name", type=click.Choice(["seq0", "seq1", "seq2", "seq3", "handheld-fast"]),
               default="seq2", show_default=True,
               help="Which synthetic motion (see jaxvo synth --help); seq2 is the paper's pan-tilt scene.")
-@click.option("--size", type=click.Choice(list(SIZES)), default="320x240", show_default=True, help="Image size.")
+@click.option("--size", callback=_size_option, default="320x240", show_default=True,
+              help="Image size WIDTHxHEIGHT.")
 @click.option("--sensor/--no-sensor", default=True, show_default=True, help="Kinect-like sensor effects.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @_handle_errors
@@ -624,6 +703,43 @@ def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress):
                           lambda: click.echo("\ninterrupted (Ctrl-C)", err=True))
     click.echo(result["table"])
     click.echo(f"\nfigures and results in {out_dir}/ ({result['wall_s']:.0f} s)")
+
+
+# ----------------------------------------------------------------------------- gt
+
+@main.command("gt", help=f"""Write a sequence's ground truth as camera poses, for other tools (evo).
+
+SEQUENCE_DIR is any folder jaxvo run reads. The ground truth (groundtruth.txt, or ICL-NUIM's
+*.gt.freiburg) is written to --out as a TUM trajectory of camera poses T_world_cam; for Bonn
+RGB-D Dynamic folders (rgbd_bonn_*) the motion-capture marker poses are converted to camera
+poses first, as jaxvo eval does. Then evo gives jaxvo eval's numbers:
+
+\b
+  jaxvo gt SEQ -o gt.txt
+  evo_ape tum gt.txt traj.txt -a --t_max_diff 0.02                          # ATE
+  evo_rpe tum gt.txt traj.txt --delta 1 --delta_unit f --t_max_diff 0.02     # RPE 1 frame
+  evo_rpe tum gt.txt traj.txt --delta 1 --delta_unit f --t_max_diff 0.02 --pose_relation angle_deg
+
+{CONVENTIONS}
+""")
+@click.argument("sequence_dir", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="TUM trajectory file to write (camera poses T_world_cam).")
+@click.option("--bonn/--no-bonn", default=None,
+              help="Force / forbid the Bonn marker-to-camera conversion. [default: by folder name]")
+@_handle_errors
+def gt_cmd(sequence_dir, out, bonn):
+    from jaxvo.datasets import open_sequence
+    from jaxvo.trajectory import HEADER, write_tum_trajectory
+
+    seq = open_sequence(sequence_dir, bonn=bonn, camera=DEFAULT)  # intrinsics are not needed here
+    gt = seq.groundtruth
+    if gt is None:
+        raise DatasetError(f"{seq.groundtruth_path}: file not found (the sequence folder has no ground truth)")
+    what = "Bonn marker poses converted to camera poses" if seq.is_bonn else "as stored"
+    write_tum_trajectory(out, gt[0], gt[1], header=f"# ground truth of {seq.path} ({seq.groundtruth_path.name}, "
+                                                    f"{what})\n{HEADER}")
+    click.echo(f"wrote {len(gt[0])} ground-truth camera poses ({what}) to {out}")
 
 
 # ----------------------------------------------------------------------------- map
@@ -664,29 +780,29 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: as for 'jaxvo run': info.json, else from the folder name]")
+              help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
+                   "the folder name]")
+@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
 @click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @FORCE
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
-            no_labels, seed, camera_preset, max_dt, no_progress, force):
+            no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
     from jaxvo.datasets import read_pose_file
     from jaxvo.mapping import build_map, render_preview, write_ply
     from jaxvo.odometry import Config
 
     if use_masks and no_labels:
         raise _Fail("--use-masks and --no-labels exclude each other")
-    if not Path(sequence_dir).exists():
-        raise DatasetError(f"{sequence_dir}: sequence folder does not exist")
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
     check_output(out_ply, [sequence_dir, traj], force)
     if preview is not None:
         check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
-    cam = resolve_camera(sequence_dir, camera_preset)
-    seq = TumSequence(sequence_dir, camera=cam, max_dt=max_dt, max_frames=max_frames)
+    seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
     # a ground-truth file may repeat a timestamp (TUM's tools keep the first); an estimate may not
     t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
     if len(t_traj) == 0:

@@ -7,9 +7,11 @@ hyperparameter sweep compiled once.
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Any, NamedTuple, Optional, Tuple
 
 import jax
+import numpy as np
 
 from jaxvo.validation import check_fields, check_names, choice, flag, integer, positive_ints, real
 
@@ -118,16 +120,21 @@ class Config:
         """``base`` (default ``Config()``) with the fields in ``values`` (e.g. parsed JSON) changed,
         lists turned into tuples (``blocks``), and validated. Unknown names and bad values raise
         ValueError naming them."""
-        if not isinstance(values, dict):
-            raise ValueError(f"expected an object of Config fields, got {type(values).__name__}")
-        changes = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-        cfg = (cls() if base is None else base).replace(**changes)
-        cfg.validate()
-        return cfg
+        return _from_json(cls, values, [f.name for f in dataclasses.fields(cls)], base)
 
     def replace(self, **changes) -> "Config":
         check_names(changes, _RULES, "Config")
         return dataclasses.replace(self, **changes)
+
+    def to_json(self) -> str:
+        """Every field as one line of JSON (tuples as lists); :meth:`from_json` reads it back exactly."""
+        return _to_json(self, [f.name for f in dataclasses.fields(self)])
+
+    @classmethod
+    def from_json(cls, text) -> "Config":
+        """A validated Config from :meth:`to_json`'s output (a JSON string or an already parsed dict).
+        Missing fields keep their defaults; unknown fields or invalid values raise ValueError."""
+        return _from_json(cls, text, [f.name for f in dataclasses.fields(cls)])
 
     def validate(self) -> None:
         """Raise ValueError naming the first field whose value breaks its rule in ``_RULES``
@@ -247,6 +254,15 @@ class TrackConfig(NamedTuple):
         return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
                       "max_step": 0.1, "max_step_deg": 10.0, **changes})
 
+    def to_json(self) -> str:
+        """Every field as one line of JSON; :meth:`from_json` reads it back exactly."""
+        return _to_json(self, list(self._fields))
+
+    @classmethod
+    def from_json(cls, text) -> "TrackConfig":
+        """A validated TrackConfig from :meth:`to_json`'s output (JSON string or dict)."""
+        return _from_json(cls, text, list(cls._fields))
+
     def validate(self) -> None:
         """Raise ValueError naming the first field that breaks its rule (see ``_TRACK_RULES``)."""
         check_fields(self, _TRACK_RULES, "TrackConfig")
@@ -264,3 +280,36 @@ _TRACK_RULES = {
     "switch_deg": real(0, 180, lo_open=True),
     "history": integer(0, 6),
 }
+
+
+def _plain(v):
+    """A field value as plain JSON data: tuples -> lists, NumPy / JAX scalars -> int / float / bool."""
+    if isinstance(v, (tuple, list)):
+        return [_plain(x) for x in v]
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    try:
+        a = np.asarray(v)
+    except Exception:  # a tracer
+        raise ValueError(f"cannot write a traced or non-numeric value {v!r} to JSON") from None
+    if a.ndim != 0:
+        raise ValueError(f"cannot write a non-scalar field value of shape {a.shape} to JSON")
+    return a.item()
+
+
+def _to_json(obj, names) -> str:
+    return json.dumps({n: _plain(getattr(obj, n)) for n in names})
+
+
+def _from_json(cls, text, names, base=None):
+    """A validated ``cls`` from JSON text or a parsed dict of fields (lists -> tuples), the other
+    fields from ``base`` (default ``cls()``); unknown names and bad values raise ValueError."""
+    data = json.loads(text) if isinstance(text, (str, bytes)) else text
+    if not isinstance(data, dict):
+        raise ValueError(f"{cls.__name__}: expected a JSON object of fields, got {type(data).__name__}")
+    check_names(data, names, cls.__name__)
+    changes = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+    obj = cls(**changes) if base is None else \
+        (base._replace(**changes) if hasattr(base, "_replace") else dataclasses.replace(base, **changes))
+    obj.validate()
+    return obj

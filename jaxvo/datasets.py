@@ -1,10 +1,26 @@
-"""TUM RGB-D / Bonn RGB-D Dynamic sequence readers, timestamp association, ground truth.
+"""RGB-D sequence readers (TUM, Bonn, ETH3D, ICL-NUIM, Redwood), timestamp association, ground truth.
 
-A sequence folder has the TUM RGB-D layout::
+:func:`open_sequence` picks the reader from what the folder holds:
+
+* TUM RGB-D layout (TUM, Bonn RGB-D Dynamic, ETH3D SLAM, jaxvo synthetic): :class:`TumSequence`::
 
     SEQ/rgb.txt          "timestamp filename" lines (# = comment), 8-bit colour PNGs
-    SEQ/depth.txt        "timestamp filename" lines, 16-bit PNGs, metres = value / depth_scale
+    SEQ/depth.txt        "timestamp filename" lines, 16-bit PNGs, metres = value / depth_scale (5000)
     SEQ/groundtruth.txt  optional, "timestamp tx ty tz qx qy qz qw" (T_world_cam for TUM)
+    SEQ/calibration.txt  optional (ETH3D), "fx fy cx cy" in pixels
+
+* ICL-NUIM (TUM-compatible release): ``associations.txt`` ("t depth/N.png t rgb/N.png" per line,
+  either order), depth value / 5000, ground truth ``groundtruth.txt`` or ``*.gt.freiburg``:
+  :class:`IclNuimSequence`;
+* Redwood / Open3D: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` folders of numbered
+  images taken in name order at 30 Hz, depth in millimetres (value / 1000), optional
+  ``camera_intrinsic.json`` (Open3D's PinholeCameraIntrinsic): :class:`RedwoodSequence`.
+
+Intrinsics, unless given: the layout's calibration file (``calibration.txt``,
+``camera_intrinsic.json``, jaxvo's ``info.json``), else the preset for the folder name
+(:func:`jaxvo.camera.camera_for_sequence`), scaled to the images' size when they are not
+640x480 (see :func:`sequence_camera`). The first frame read is checked for a plausible depth
+scale (:func:`check_depth_scale`).
 
 The Bonn RGB-D Dynamic dataset uses the same layout, but its ground truth is the
 pose of the motion-capture marker, not of the camera; :func:`bonn_marker_to_camera`
@@ -28,11 +44,12 @@ from typing import Iterator, List, Optional, Tuple
 import numpy as np
 
 from jaxvo import geometry
-from jaxvo.camera import Camera, camera_for_sequence
+from jaxvo.camera import Camera, camera_for_sequence, camera_for_size
 from jaxvo.frame import Frame, make_frame
 
 __all__ = [
-    "DatasetError", "TumSequence", "associate", "read_file_list", "read_groundtruth",
+    "DatasetError", "TumSequence", "IclNuimSequence", "RedwoodSequence", "open_sequence", "sequence_camera",
+    "check_depth_scale", "read_calibration", "associate", "read_file_list", "read_groundtruth",
     "read_pose_file", "bonn_marker_to_camera", "is_bonn_sequence", "interpolate_poses",
     "find_sequences", "find_sequence", "data_root", "T_ROS", "T_M_BONN",
 ]
@@ -352,39 +369,45 @@ class TumSequence:
 
     Args:
       path: the sequence folder.
-      camera: intrinsics; default ``camera_for_sequence(folder name)`` (freiburg1/2/3,
-        ``rgbd_bonn_*``, else the default 525/319.5/239.5 camera).
+      camera: intrinsics; default :func:`sequence_camera` (calibration file, jaxvo's
+        info.json, else the preset for the folder name, sized to the images);
+        ``camera_source`` says which.
       max_dt: maximum |t_rgb - t_depth| (s) for associating colour and depth (one-to-one,
         nearest first, as TUM's associate.py). Also the tolerance of the ground-truth
         coverage check.
-      depth_scale: depth PNG value / depth_scale = metres (5000 for TUM and Bonn).
+      depth_scale: depth PNG value / depth_scale = metres; None = the layout's (5000 for TUM,
+        Bonn, ETH3D and ICL-NUIM; 1000, millimetres, for Redwood).
       start: index of the first associated frame to use.
       max_frames: use at most this many frames (None = all).
       bonn: treat ground truth as Bonn marker poses and convert it to camera poses;
         None = decide from the folder name (``rgbd_bonn_*``).
       gt_slack: see :attr:`groundtruth` (seconds, default 0.1).
+      mask_dir: optional folder of user masks, one 8-bit PNG per colour frame (nonzero = the
+        pixel may be used, e.g. 0 on a detector's people), named like the colour image or
+        ``<timestamp>.png``; fills :attr:`jaxvo.frame.Frame.mask` (frames without one: None, all
+        pixels usable).
 
     Attributes:
       camera, timestamps ((N,) float64 rgb timestamps of the used frames, seconds),
       depth_timestamps ((N,)), rgb_paths / depth_paths (lists of Path), name, path, is_bonn.
     """
 
+    #: depth PNG value / DEPTH_SCALE = metres, where the layout does not say otherwise
+    DEPTH_SCALE = 5000.0
+    LAYOUT = "TUM RGB-D"
+
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
-                 depth_scale: float = 5000.0, start: int = 0, max_frames: Optional[int] = None,
-                 bonn: Optional[bool] = None, gt_slack: float = 0.1):
+                 depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
+                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None):
         self.path = Path(path)
         if not self.path.exists():
             raise DatasetError(f"{self.path}: sequence folder does not exist")
         if not self.path.is_dir():
-            raise DatasetError(f"{self.path}: not a folder (expected a TUM sequence folder)")
+            raise DatasetError(f"{self.path}: not a folder (expected a {self.LAYOUT} sequence folder)")
         self.name = self.path.resolve().name
-        for f in ("rgb.txt", "depth.txt"):
-            if not (self.path / f).is_file():
-                raise DatasetError(f"{self.path / f}: file not found (a TUM sequence folder needs "
-                                   f"rgb.txt and depth.txt)")
         if not (max_dt > 0):
             raise ValueError(f"max_dt must be > 0 seconds, got {max_dt}")
-        if not (depth_scale > 0):
+        if depth_scale is not None and not (depth_scale > 0):
             raise ValueError(f"depth_scale must be > 0, got {depth_scale}")
         if start < 0:
             raise ValueError(f"start must be >= 0, got {start}")
@@ -393,13 +416,48 @@ class TumSequence:
         if camera is not None and not isinstance(camera, Camera):
             raise ValueError(f"camera must be a jaxvo.Camera, got {camera!r}"
                              + (f" (use jaxvo.camera.PRESETS[{camera!r}])" if isinstance(camera, str) else ""))
-        self.camera = camera if camera is not None else camera_for_sequence(self.name)
-        self.camera.validate()
         self.max_dt = float(max_dt)
-        self.depth_scale = float(depth_scale)
+        self.depth_scale = float(self.DEPTH_SCALE if depth_scale is None else depth_scale)
+        self._scale_given = depth_scale is not None
         self.is_bonn = is_bonn_sequence(self.path) if bonn is None else bool(bonn)
         self.gt_slack = float(gt_slack)
 
+        t_rgb, t_dep, rgb_paths, depth_paths, listing = self._frame_lists()
+        n_assoc = len(t_rgb)
+        stop = None if max_frames is None else start + max_frames
+        if start >= n_assoc:
+            raise DatasetError(f"{self.path}: start={start} is past the end ({n_assoc} associated frames)")
+        self.n_associated = int(n_assoc)
+        self.start = int(start)
+        self.timestamps = np.array(t_rgb[start:stop], np.float64)
+        self.depth_timestamps = np.array(t_dep[start:stop], np.float64)
+        self.rgb_paths = list(rgb_paths[start:stop])
+        self.depth_paths = list(depth_paths[start:stop])
+        for p, lst in ((self.rgb_paths, listing[0]), (self.depth_paths, listing[1])):
+            for f in p:
+                if not f.is_file():
+                    raise DatasetError(f"{f}: file not found (listed in {lst})")
+        self.mask_dir = None if mask_dir is None else Path(mask_dir)
+        self.mask_paths = self._match_masks() if mask_dir is not None else [None] * len(self.rgb_paths)
+        if camera is not None:
+            self.camera, self.camera_source = camera, "given"
+        else:
+            self.camera, self.camera_source = sequence_camera(self.path, self._image_size(0), self.name)
+        try:
+            self.camera.validate()
+        except ValueError as e:
+            raise DatasetError(f"{self.path}: {e} (camera from {self.camera_source})") from None
+        self._gt = None
+        self._gt_loaded = False
+        self._depth_checked = False
+
+    def _frame_lists(self):
+        """All associated frames in time order: (rgb stamps (N,), depth stamps (N,), rgb paths,
+        depth paths, (what lists the rgb files, what lists the depth files))."""
+        for f in ("rgb.txt", "depth.txt"):
+            if not (self.path / f).is_file():
+                raise DatasetError(f"{self.path / f}: file not found (a TUM sequence folder needs "
+                                   f"rgb.txt and depth.txt)")
         rgb_txt, depth_txt = self.path / "rgb.txt", self.path / "depth.txt"
         t_rgb, f_rgb = read_file_list(rgb_txt)
         t_dep, f_dep = read_file_list(depth_txt)
@@ -408,29 +466,47 @@ class TumSequence:
             raise DatasetError(
                 f"{rgb_txt}: no rgb/depth pair within {self.max_dt} s of each other (rgb "
                 f"{t_rgb[0]:.6f} .. {t_rgb[-1]:.6f}, depth.txt {t_dep[0]:.6f} .. {t_dep[-1]:.6f})")
-        n_assoc = ia.size
-        stop = None if max_frames is None else start + max_frames
-        ia, ib = ia[start:stop], ib[start:stop]
-        if ia.size == 0:
-            raise DatasetError(f"{self.path}: start={start} is past the end ({n_assoc} associated frames)")
-        self.n_associated = int(n_assoc)
-        self.timestamps = t_rgb[ia].copy()
-        self.depth_timestamps = t_dep[ib].copy()
-        self.rgb_paths = [self.path / f_rgb[i] for i in ia]
-        self.depth_paths = [self.path / f_dep[j] for j in ib]
-        for p, lst in ((self.rgb_paths, "rgb.txt"), (self.depth_paths, "depth.txt")):
-            for f in p:
-                if not f.is_file():
-                    raise DatasetError(f"{f}: file not found (listed in {lst})")
-        self._gt = None
-        self._gt_loaded = False
+        return (t_rgb[ia], t_dep[ib], [self.path / f_rgb[i] for i in ia], [self.path / f_dep[j] for j in ib],
+                ("rgb.txt", "depth.txt"))
+
+    def _match_masks(self) -> List[Optional[Path]]:
+        """Per used frame, the PNG in ``mask_dir`` with the colour image's file name (stem), else the one
+        named ``<timestamp>.png`` nearest the frame's timestamp (within max_dt); None where there is none
+        (every pixel usable). DatasetError when the folder is missing or matches no frame."""
+        d = self.mask_dir
+        if not d.is_dir():
+            raise DatasetError(f"{d}: mask folder does not exist")
+        files = {p.stem: p for p in d.iterdir() if p.suffix.lower() == ".png"}
+        stamped = {}
+        for stem, p in files.items():
+            try:
+                stamped[float(stem)] = p
+            except ValueError:
+                pass
+        st = np.asarray(sorted(stamped), np.float64)
+        ia, ib = associate(self.timestamps, st, self.max_dt) if st.size else (np.zeros(0, int), np.zeros(0, int))
+        by_time = {int(i): stamped[float(st[j])] for i, j in zip(ia, ib)}
+        out = [files.get(rp.stem, by_time.get(i)) for i, rp in enumerate(self.rgb_paths)]
+        if not any(p is not None for p in out):
+            raise DatasetError(f"{d}: no mask PNG matches a frame (expected the colour images' file names, e.g. "
+                               f"{self.rgb_paths[0].stem}.png, or <timestamp>.png)")
+        return out
+
+    def _image_size(self, i: int) -> Tuple[int, int]:
+        """(width, height) of frame i's colour image, read from the file."""
+        import cv2
+        p = self.rgb_paths[i]
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise DatasetError(f"{p}: image does not decode (corrupt or not an image file)")
+        return int(img.shape[1]), int(img.shape[0])
 
     # -- frames -----------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.timestamps)
 
     def __repr__(self) -> str:
-        return (f"TumSequence({str(self.path)!r}, frames={len(self)}, camera={self.camera!r}, "
+        return (f"{type(self).__name__}({str(self.path)!r}, frames={len(self)}, camera={self.camera!r}, "
                 f"bonn={self.is_bonn})")
 
     def _check_index(self, i: int) -> int:
@@ -473,7 +549,8 @@ class TumSequence:
 
     def frame(self, i: int) -> Frame:
         """Read and return frame ``i`` (negative indices allowed) as a :class:`jaxvo.frame.Frame`:
-        intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid).
+        intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid), mask (H, W) bool
+        from ``mask_dir`` or None.
 
         Raises DatasetError naming the file for undecodable images, non-16-bit depth, size
         mismatches (also with the camera's width/height) and depth without any valid pixel.
@@ -483,11 +560,27 @@ class TumSequence:
         h, w = depth.shape
         if (self.camera.width, self.camera.height) != (w, h):
             raise DatasetError(f"{self.rgb_paths[i]}: image size {w}x{h} does not match the camera "
-                               f"intrinsics' {self.camera.width}x{self.camera.height} (pass a camera)")
+                               f"intrinsics' {self.camera.width}x{self.camera.height} (camera from {self.camera_source}; "
+                               f"pass intrinsics for this size: --camera / --fx --fy --cx --cy)")
+        mask = None
+        mp = self.mask_paths[i]
+        if mp is not None:
+            import cv2
+            mask = cv2.imread(str(mp), cv2.IMREAD_GRAYSCALE)
+            if mask is None:
+                raise DatasetError(f"{mp}: mask image does not decode (corrupt or not an image file)")
+            if mask.shape != depth.shape:
+                raise DatasetError(f"{mp}: mask size {mask.shape[1]}x{mask.shape[0]} does not match the image "
+                                   f"size {w}x{h}")
         try:
-            return make_frame(rgb, depth, self.depth_scale, color_order="bgr", source=str(self.depth_paths[i]))
+            fr = make_frame(rgb, depth, self.depth_scale, color_order="bgr", source=str(self.depth_paths[i]),
+                            mask=mask)
         except ValueError as e:
             raise DatasetError(str(e)) from None
+        if not self._depth_checked:
+            check_depth_scale(fr.depth, self.depth_scale, self.depth_paths[i], explicit=self._scale_given)
+            self._depth_checked = True
+        return fr
 
     def __getitem__(self, i: int) -> Frame:
         return self.frame(i)
@@ -585,3 +678,194 @@ class TumSequence:
         if mask.any():
             out[mask] = interpolate_poses(t, T, self.timestamps[mask], tol=tol)
         return mask, out
+
+
+# ----------------------------------------------------------------------------- other layouts
+
+class IclNuimSequence(TumSequence):
+    """An ICL-NUIM sequence in its TUM-compatible release: ``associations.txt`` lines
+    ``t depth/N.png t rgb/N.png`` (or rgb first; the column whose path names ``depth`` is the depth),
+    16-bit depth / 5000, ground truth ``groundtruth.txt`` or ``*.gt.freiburg`` (TUM pose format).
+    Arguments as :class:`TumSequence`."""
+    LAYOUT = "ICL-NUIM"
+
+    def _frame_lists(self):
+        lst = self.path / "associations.txt"
+        t_rgb, t_dep, f_rgb, f_dep = [], [], [], []
+        for n, line in _data_lines(lst):
+            parts = line.split()
+            try:
+                if len(parts) < 4:
+                    raise ValueError
+                ta, tb = float(parts[0]), float(parts[2])
+            except ValueError:
+                raise DatasetError(f"{lst}:{n}: malformed line {_short(line)!r} "
+                                   f"(expected 'timestamp file timestamp file')") from None
+            (td, fd), (tr, fr) = ((ta, parts[1]), (tb, parts[3]))
+            if "depth" not in fd.lower():
+                (td, fd), (tr, fr) = (tr, fr), (td, fd)
+            t_rgb.append(tr), t_dep.append(td), f_rgb.append(fr), f_dep.append(fd)
+        if not t_rgb:
+            raise DatasetError(f"{lst}: no entries (only comments or empty)")
+        order = np.argsort(np.asarray(t_rgb), kind="stable")
+        return (np.asarray(t_rgb)[order], np.asarray(t_dep)[order], [self.path / f_rgb[i] for i in order],
+                [self.path / f_dep[i] for i in order], ("associations.txt", "associations.txt"))
+
+    @property
+    def groundtruth_path(self) -> Path:
+        p = self.path / "groundtruth.txt"
+        if not p.exists():
+            found = sorted(self.path.glob("*.gt.freiburg"))
+            if found:
+                return found[0]
+        return p
+
+
+class RedwoodSequence(TumSequence):
+    """A Redwood / Open3D RGB-D folder: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` hold
+    numbered images paired in name order; there are no timestamps, so frame k is at k / fps
+    seconds (30 Hz). Depth defaults to millimetres (depth_scale 1000). An optional
+    ``groundtruth.txt`` in TUM format (with those timestamps) is read like TUM's.
+    Arguments as :class:`TumSequence`, plus ``fps``."""
+    LAYOUT = "Redwood"
+    DEPTH_SCALE = 1000.0
+    COLOR_DIRS = ("color", "image", "rgb")
+
+    def __init__(self, path, *args, fps: float = 30.0, **kwargs):
+        self.fps = float(fps)
+        super().__init__(path, *args, **kwargs)
+
+    def _frame_lists(self):
+        exts = {".png", ".jpg", ".jpeg"}
+        col = next((self.path / c for c in self.COLOR_DIRS if (self.path / c).is_dir()), None)
+        if col is None or not (self.path / "depth").is_dir():
+            raise DatasetError(f"{self.path}: a Redwood folder needs color/ (or image/, rgb/) and depth/ folders")
+        rgb = sorted(p for p in col.iterdir() if p.suffix.lower() in exts)
+        dep = sorted(p for p in (self.path / "depth").iterdir() if p.suffix.lower() == ".png")
+        if not rgb or len(rgb) != len(dep):
+            raise DatasetError(f"{self.path}: {len(rgb)} colour images in {col.name}/ but {len(dep)} depth PNGs "
+                               f"in depth/ (they are paired in name order)")
+        t = np.arange(len(rgb), dtype=np.float64) / self.fps
+        return t, t.copy(), rgb, dep, (f"{col.name}/", "depth/")
+
+
+def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[float] = None, **kwargs) -> TumSequence:
+    """Open an RGB-D sequence folder with the reader its content calls for: ``rgb.txt`` + ``depth.txt``
+    (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
+    :class:`IclNuimSequence`; ``color/`` (or ``image/``, ``rgb/``) + ``depth/`` folders (Redwood) ->
+    :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's) and ``kwargs``
+    (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"{p}: sequence folder does not exist")
+    if not p.is_dir():
+        raise DatasetError(f"{p}: not a folder (expected an RGB-D sequence folder)")
+    if _is_sequence_dir(p) or (p / "rgb.txt").is_file() or (p / "depth.txt").is_file():
+        cls = TumSequence   # with one of the two lists only, TumSequence names the missing one
+    elif (p / "associations.txt").is_file():
+        cls = IclNuimSequence
+    elif (p / "depth").is_dir() and any((p / c).is_dir() for c in RedwoodSequence.COLOR_DIRS):
+        cls = RedwoodSequence
+    else:
+        raise DatasetError(f"{p}: not an RGB-D sequence folder: expected rgb.txt and depth.txt (TUM, Bonn, "
+                           f"ETH3D), associations.txt (ICL-NUIM), or color/ and depth/ folders (Redwood)")
+    return cls(p, camera=camera, depth_scale=depth_scale, **kwargs)
+
+
+# ----------------------------------------------------------------------------- intrinsics and depth scale
+
+def read_calibration(seq_dir) -> Optional[Tuple[Camera, str]]:
+    """(camera, file name) from a sequence folder's calibration file, or None without one.
+
+    Looked for in this order: ``calibration.txt`` (ETH3D: ``fx fy cx cy``; its size is 0x0 here,
+    meaning "take it from the images"), ``camera_intrinsic.json`` / ``intrinsic.json`` (Open3D's
+    PinholeCameraIntrinsic: width, height, column-major intrinsic_matrix), ``info.json``'s
+    ``camera`` entry (written by ``jaxvo synth`` / ``jaxvo augment``). A malformed file raises
+    DatasetError naming it.
+    """
+    import json
+
+    d = Path(seq_dir)
+    cal = d / "calibration.txt"
+    if cal.is_file():
+        lines = [s for _, s in _data_lines(cal)]
+        try:
+            fx, fy, cx, cy = (float(v) for v in lines[0].split()[:4])
+        except (IndexError, ValueError):
+            raise DatasetError(f"{cal}: expected a line 'fx fy cx cy' (pixels)") from None
+        return Camera(fx, fy, cx, cy, 0, 0), cal.name
+    for name in ("camera_intrinsic.json", "intrinsic.json"):
+        f = d / name
+        if f.is_file():
+            try:
+                j = json.loads(f.read_text())
+                K = [float(v) for v in j["intrinsic_matrix"]]
+                return Camera(K[0], K[4], K[6], K[7], int(j["width"]), int(j["height"])), name
+            except (ValueError, KeyError, TypeError, IndexError) as e:
+                raise DatasetError(f"{f}: malformed Open3D intrinsics (need width, height, intrinsic_matrix; "
+                                   f"{type(e).__name__}: {e})") from None
+    info = d / "info.json"
+    if info.is_file():
+        try:
+            c = json.loads(info.read_text()).get("camera")
+            if isinstance(c, dict):
+                return Camera(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]),
+                              int(c.get("width", 640)), int(c.get("height", 480))), info.name
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            raise DatasetError(f"{info}: malformed camera entry ({e})") from None
+    return None
+
+
+def sequence_camera(seq_dir, image_size: Tuple[int, int], name: Optional[str] = None) -> Tuple[Camera, str]:
+    """(camera, where it came from) for a folder whose images are ``image_size`` (width, height).
+
+    The calibration file (:func:`read_calibration`) if there is one (a size-less ETH3D
+    calibration takes the images' size); else the preset for the folder ``name``
+    (:func:`jaxvo.camera.camera_for_sequence`), or, when the images are not that preset's
+    size, the preset scaled to them (:func:`jaxvo.camera.camera_for_size`): a guess, said so
+    in the returned source.
+    """
+    w, h = image_size
+    found = read_calibration(seq_dir)
+    if found is not None:
+        cam, src = found
+        return (cam.with_size(w, h) if cam.width == 0 else cam), src
+    name = Path(seq_dir).resolve().name if name is None else name
+    cam = camera_for_sequence(name)
+    if (cam.width, cam.height) == (w, h):
+        return cam, "folder name"
+    return camera_for_size(cam, w, h), f"a guess: the {cam.width}x{cam.height} preset for the folder name scaled to {w}x{h}"
+
+
+#: where a median valid depth (metres) is taken as plausible for an RGB-D camera
+PLAUSIBLE_DEPTH = (0.2, 10.0)
+#: with the layout's default depth scale, a median below this (metres) stops the run too: a
+#: recording in millimetres read as TUM's 1/5000 m puts typical indoor scenes (median 1.5-3 m:
+#: TUM fr2/desk 1.5, fr3/long_office 2.4, Bonn crowd 2.3-2.9) at 0.3-0.6 m
+DEFAULT_SCALE_MIN_MEDIAN = 0.7
+
+
+def check_depth_scale(depth_m, depth_scale: float, source, explicit: bool = True) -> None:
+    """Raise DatasetError (one line naming ``source`` and the depth scale to pass) when the depth
+    scale looks wrong: the median valid depth of ``depth_m`` (metres, 0 = invalid) outside
+    :data:`PLAUSIBLE_DEPTH`, or, when ``depth_scale`` is the layout's default rather than
+    chosen (``explicit``), under :data:`DEFAULT_SCALE_MIN_MEDIAN` (millimetres read with TUM's
+    5000 come out 5x too small; passing the scale explicitly accepts such close scenes)."""
+    d = np.asarray(depth_m)
+    v = d[d > 0]
+    if v.size == 0:
+        return
+    med = float(np.median(v))
+    lo, hi = PLAUSIBLE_DEPTH
+    low = med < (lo if explicit else max(lo, DEFAULT_SCALE_MIN_MEDIAN))
+    if not low and med <= hi:
+        return
+    raw = med * depth_scale
+    fits = [c for c in (1000.0, 5000.0, 10000.0, 4000.0, 100.0, 1.0) if c != depth_scale and lo <= raw / c <= hi]
+    best = min(fits, key=lambda c: abs(np.log(raw / c / 2.0))) if fits else raw / 2.0
+    keep = "" if explicit or not low or med < lo else f"; if the scene really is that close pass --depth-scale {depth_scale:g}"
+    raise DatasetError(f"{source}: median valid depth {med:.3g} m with depth scale {depth_scale:g} is implausible "
+                       f"(expected {max(lo, DEFAULT_SCALE_MIN_MEDIAN) if low and not explicit else lo:g}-{hi:g} m); "
+                       f"pass --depth-scale {best:g} (library: depth_scale={best:g}), which gives {raw / best:.2f} m"
+                       f"{keep}")

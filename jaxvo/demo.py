@@ -10,15 +10,31 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxvo.camera import DEFAULT
+from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.datasets import DatasetError, TumSequence
 from jaxvo.evaluation import load_mask, true_masks
 from jaxvo.runner import outlier_mask, run_sequence
 
-__all__ = ["run_demo", "DEMO_METHODS", "SIZES", "fmt", "progress_bar"]
-
-SIZES = {"640x480": 0, "320x240": 1, "160x120": 2}
+__all__ = ["run_demo", "DEMO_METHODS", "parse_size", "fmt", "progress_bar"]
 DEMO_METHODS = ("classic", "huber", "ransac")
+
+
+def parse_size(size) -> tuple:
+    """``"WIDTHxHEIGHT"`` (or a (width, height) pair) -> (width, height) ints; ValueError naming the
+    problem for anything else or a side under 32 pixels."""
+    if isinstance(size, str):
+        parts = size.lower().split("x")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            w, h = int(parts[0]), int(parts[1])
+        except ValueError:
+            raise ValueError(f"--size {size!r}: expected WIDTHxHEIGHT, e.g. 424x240") from None
+    else:
+        w, h = (int(v) for v in size)
+    if w < 32 or h < 32:
+        raise ValueError(f"--size {w}x{h}: width and height must be at least 32 pixels")
+    return w, h
 
 
 def fmt(x, nd=4) -> str:
@@ -63,7 +79,9 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise DatasetError(f"{out}: cannot create output folder ({e.strerror or e})") from None
-    cam = DEFAULT.at_level(SIZES[size])
+    width, height = parse_size(size)
+    size = f"{width}x{height}"
+    cam = camera_for_size(DEFAULT, width, height)
     seq_dir = out / "sequence"
     reuse = _sequence_matches(seq_dir, seq_name, frames, seed, cam, sensor)
     total = (0 if reuse else frames) + len(methods) * (frames - 1)
@@ -98,10 +116,12 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
             def on_pair(step, counts=counts, method=method):
                 est = step.estimate
                 pred, val = outlier_mask(est, cam.width, cam.height, valid_too=True)
+                if step.static_mask is not None:   # the segmentation's dynamic pixels are outliers too
+                    pred, val = pred | ~step.static_mask, val | ~step.static_mask
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
                 if step.reference == show:
-                    shown[method] = (np.asarray(est.inlier_mask, bool), np.asarray(est.valid_mask, bool))
+                    shown[method] = (~pred, val)
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")
             res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)

@@ -17,75 +17,116 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from jaxvo.camera import PRESETS, Camera, camera_for_sequence
-from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.camera import PRESETS, Camera
+from jaxvo.datasets import DatasetError, TumSequence, open_sequence
 
-__all__ = ["RunResult", "run_sequence", "load_config", "resolve_camera", "outlier_mask", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
+
+
+def read_run_settings(path) -> dict:
+    """The settings stored in ``path``: a JSON object of Config fields (-> ``{"config": {...}}``), or a
+    trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
+    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method`` and ``sequence`` (the
+    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir).
+    Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
+    """
+    p = Path(path)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise DatasetError(f"{p}: config file not found") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{p}: is a folder, expected a JSON config file") from None
+    except UnicodeDecodeError as e:
+        raise DatasetError(f"{p}: config file is not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise DatasetError(f"{p}: cannot read config file ({e.strerror or e})") from None
+    if text.lstrip().startswith("#"):
+        found = {}
+        for line in text.splitlines():
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].strip().partition(": ")
+            if sep and key in ("config", "track", "sequence", "seed"):
+                try:
+                    found[key] = json.loads(value)
+                except json.JSONDecodeError as e:
+                    raise DatasetError(f"{p}: malformed '# {key}:' header line ({e.msg})") from None
+        if "config" not in found:
+            raise DatasetError(f"{p}: no '# config: {{...}}' header line (not a trajectory written by jaxvo run)")
+        return found
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno}) nor a jaxvo trajectory file") \
+            from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
+    return {"config": data}
 
 
 def load_config(path=None, **overrides):
-    """A :class:`jaxvo.config.Config` from a JSON file of Config fields plus overrides (None = keep).
+    """A :class:`jaxvo.config.Config` from a JSON file of Config fields, or from the header of a
+    trajectory file written by ``jaxvo run`` (:func:`read_run_settings`), plus overrides (None = keep).
 
-    Lists become tuples (``blocks``). Unknown fields, a malformed file or an invalid value
-    (checked by :meth:`Config.validate`: type, finiteness, range) raise ValueError /
-    DatasetError naming the file and the field.
+    Unknown fields, a malformed file or an invalid value raise ValueError / DatasetError naming the file.
     """
     from jaxvo.config import Config
 
-    cfg = Config()
-    if path is not None:
-        p = Path(path)
-        try:
-            data = json.loads(p.read_bytes().decode("utf-8"))
-        except UnicodeDecodeError as e:
-            raise DatasetError(f"{p}: config file is not UTF-8 text (byte {e.start})") from None
-        except json.JSONDecodeError as e:
-            raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno})") from None
-        except IsADirectoryError:
-            raise DatasetError(f"{p}: is a folder, expected a JSON config file") from None
-        except FileNotFoundError:
-            raise DatasetError(f"{p}: config file not found") from None
-        if not isinstance(data, dict):
-            raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
-        try:
-            cfg = Config.from_dict(data)
-        except ValueError as e:
-            raise DatasetError(f"{p}: {e}") from None
-    return Config.from_dict({k: v for k, v in overrides.items() if v is not None}, base=cfg)
+    values = dict(read_run_settings(path)["config"]) if path is not None else {}
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return Config.from_json(values)
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{path}: {e}" if path is not None else str(e)) from None
+
+
+def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> List[str]:
+    """The ``#`` comment lines that start a trajectory file of :func:`run_sequence`: jaxvo's version,
+    method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`) and
+    the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("jaxvo")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        v = "unknown"
+    lines = [f"# jaxvo {v}: jaxvo run SEQUENCE --config THIS_FILE reproduces this trajectory",
+             f"# method: {config.method}", f"# seed: {int(seed)}", f"# config: {config.to_json()}",
+             f"# track: {policy.to_json()}"]
+    if seq is not None:
+        c = seq.camera
+        info = {"path": str(seq.path), "reader": type(seq).__name__, "start": int(seq.start), "frames": len(seq),
+                "depth_scale": seq.depth_scale, "max_dt": seq.max_dt,
+                "camera": {"fx": float(c.fx), "fy": float(c.fy), "cx": float(c.cx), "cy": float(c.cy),
+                           "width": c.width, "height": c.height},
+                "mask_dir": None if seq.mask_dir is None else str(seq.mask_dir)}
+        lines.append(f"# sequence: {json.dumps(info)}")
+    return lines
+
+
+def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
+                  **kwargs) -> TumSequence:
+    """Open a sequence folder of any supported layout (:func:`jaxvo.datasets.open_sequence`) with the
+    intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
+    folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
+    (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
+    the reader. ``seq.camera_source`` says where the intrinsics came from.
+    """
+    seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None, **kwargs)
+    if preset is not None:
+        seq.camera_source = f"preset {preset}"
+    over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
+    if over:
+        seq.camera = dataclasses.replace(seq.camera, **over)
+        seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
+        seq.camera.validate()
+    return seq
 
 
 def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
-    """Intrinsics for a sequence folder.
-
-    ``preset`` (fr1, fr2, fr3, bonn, default) if given; else the ``camera`` entry of the
-    folder's ``info.json`` (written by ``jaxvo synth`` / ``jaxvo augment``); else chosen from
-    the folder name (freiburg1/2/3, rgbd_bonn_*, otherwise the default 525/319.5/239.5 camera).
-    ``fx, fy, cx, cy`` (pixels) override single values.
-    """
-    seq_dir = Path(seq_dir)
-    info = seq_dir / "info.json"
-    cam = None
-    if preset is not None:
-        cam = PRESETS[preset]
-    else:
-        if info.is_file():
-            try:
-                c = json.loads(info.read_text()).get("camera")
-                if isinstance(c, dict):
-                    cam = Camera(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]),
-                                 int(c.get("width", 640)), int(c.get("height", 480)))
-            except (ValueError, KeyError, TypeError, AttributeError) as e:
-                raise DatasetError(f"{info}: malformed camera entry ({e})") from None
-        if cam is None:
-            cam = camera_for_sequence(seq_dir.resolve().name)
-    over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
-    if over:
-        cam = dataclasses.replace(cam, **over)
-    try:
-        cam.validate()
-    except ValueError as e:
-        raise DatasetError(f"{info}: {e}" if not over and preset is None and info.is_file() else str(e)) from None
-    return cam
+    """The intrinsics :func:`load_sequence` gives a folder (see there)."""
+    return load_sequence(seq_dir, preset, fx, fy, cx, cy, max_frames=1).camera
 
 
 def outlier_mask(est, width: int, height: int, valid_too: bool = False):
@@ -136,7 +177,7 @@ class RunResult:
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
     """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
-    :class:`jaxvo.odometry.TrackConfig`; default frame to frame), so results equal the library's,
+    :class:`jaxvo.odometry.TrackConfig`; default ``TrackConfig()``), so results equal the library's,
     writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
     estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
     timestamp: the mask lives on the reference image's pixels; with keyframes the last
@@ -159,7 +200,11 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
             mask_dir.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise DatasetError(f"{mask_dir}: cannot create mask folder ({e.strerror or e})") from None
-    writer = TrajectoryWriter(out) if out is not None else None
+    from jaxvo.config import TrackConfig
+    from jaxvo.trajectory import HEADER
+
+    header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
+    writer = TrajectoryWriter(out, header=header) if out is not None else None
     poses = [np.eye(4)]
     ratios: List[float] = []
     valids: List[bool] = []
@@ -175,6 +220,8 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
             writer.write(stamps[i + 1], pose)
         if mask_dir is not None:
             m = outlier_mask(est, W, H)
+            if step.static_mask is not None:   # what the segmentation marked dynamic is an outlier too
+                m = m | ~step.static_mask
             p = mask_dir / f"{stamp_name(stamps[ref])}.png"
             if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
                 raise OSError(f"{p}: could not write mask image")

@@ -287,7 +287,7 @@ LIBRARY_CASES = [
     ("config-bool-as-int", lambda: Config(max_hypotheses=True).validate(), "Config.max_hypotheses"),
     ("config-scoring", lambda: Config(scoring="best").validate(), "Config.scoring must be one of 'count', 'msac'"),
     ("config-replace-unknown", lambda: Config().replace(blcoks=(4,)), "did you mean 'blocks'"),
-    ("config-from-dict-list", lambda: Config.from_dict([1]), "expected an object"),
+    ("config-from-dict-list", lambda: Config.from_dict([1]), "expected a JSON object"),
     ("track-config-gap", lambda: TrackConfig(max_gap=0).validate(), "TrackConfig.max_gap"),
     ("track-config-lag", lambda: TrackConfig(max_gap=4, lag=4).validate(), "(max_gap = 4)"),
     ("track-config-flag", lambda: TrackConfig(hold_invalid="yes").validate(), "TrackConfig.hold_invalid"),

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry as G
-from jaxvo.camera import BONN, TUM_FR2, Camera
+from jaxvo.camera import BONN, DEFAULT, TUM_FR2, Camera, camera_for_size
 from jaxvo.datasets import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                             data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
                             read_pose_file)
@@ -85,17 +85,19 @@ def test_start_and_max_frames(tmp_path):
 
 
 def test_camera_from_folder_name(tmp_path):
+    # the images are 8x6, not the presets' 640x480: the preset is scaled to them, and said to be a guess
     d = make_seq(tmp_path, name="rgbd_dataset_freiburg2_fake", n=2)
-    assert TumSequence(d).camera == TUM_FR2
+    s = TumSequence(d)
+    assert s.camera == camera_for_size(TUM_FR2, W, H) and s.camera_source.startswith("a guess")
     d = make_seq(tmp_path, name="rgbd_bonn_fake", n=2)
     s = TumSequence(d)
-    assert s.camera == BONN and s.is_bonn
+    assert s.camera == camera_for_size(BONN, W, H) and s.is_bonn
     assert TumSequence(d, camera=SMALL, bonn=False).camera == SMALL
 
 
 def test_camera_size_mismatch_is_reported(tmp_path):
     d = make_seq(tmp_path, n=2)
-    s = TumSequence(d)  # default 640x480 camera, images are 8x6
+    s = TumSequence(d, camera=DEFAULT)  # a 640x480 camera, images are 8x6
     with pytest.raises(DatasetError, match="does not match the camera"):
         s.frame(0)
 

@@ -157,3 +157,56 @@ def test_irls_huber_recovers_known_motion(pair):
     sol = f(jnp.eye(4), jnp.ones(pts.u.shape))
     et, er = _errors(sol.T)
     assert et < 1e-3 and er < 0.05, (et, er)
+
+
+# --------------------------------------------------------------------------- jaxopt through its public API
+
+def test_jaxopt_and_jax_import_together_at_the_declared_versions(pair):
+    """jaxopt and jax import together, at least at the versions jaxvo declares (which are the
+    oldest tested), and one LM solve runs: an incompatible pair fails here, at import or on
+    the first solve, instead of deep inside a run."""
+    from importlib.metadata import requires, version
+
+    import jaxopt
+    from packaging.requirements import Requirement
+
+    declared = {r.name: r for r in map(Requirement, requires("jaxvo")) if r.marker is None}
+    for name in ("jax", "jaxopt"):
+        assert declared[name].specifier.contains(version(name)), (name, version(name), str(declared[name]))
+    assert hasattr(jaxopt, "LevenbergMarquardt")
+    ref, cur, pts = pair
+    sol = _solve(jnp.eye(4), pts, cur, jnp.ones(pts.u.shape))
+    assert np.all(np.isfinite(np.asarray(sol.T))) and int(sol.iterations) >= 1
+
+
+def test_solvers_use_only_the_public_jaxopt_api():
+    """No subclass of a jaxopt class, no private attribute (``solver._x``), no reading of LM's
+    internal bookkeeping (``increase_factor``): what a jaxopt release may change without notice."""
+    import ast
+    import inspect
+
+    import jaxvo.solvers
+
+    tree = ast.parse(inspect.getsource(jaxvo.solvers))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            assert "jaxopt" not in " ".join(ast.unparse(b) for b in node.bases), node.name
+        if isinstance(node, ast.Attribute):
+            private = node.attr.startswith("_") and not node.attr.startswith("__")
+            assert not private and node.attr != "increase_factor", ast.unparse(node)
+
+
+def test_lm_uses_the_analytic_jacobian(pair):
+    """The residual function jaxopt differentiates yields the analytic Jacobian of
+    jaxvo.residuals.photometric_terms (a custom JVP), not autodiff through the sampler."""
+    from jaxvo.residuals import photometric_terms
+    from jaxvo.solvers import _weighted_residual_fun
+
+    ref, cur, pts = pair
+    T0 = jnp.asarray(G.exp(0.5 * XI_TRUE), jnp.float32)
+    sqrt_w = jnp.full(pts.u.shape, 0.5, jnp.float32)
+    fun = _weighted_residual_fun(T0, pts, cur, CAM, sqrt_w, None)
+    J = jax.jit(jax.jacfwd(fun))(jnp.zeros(6, jnp.float32))
+    r, J_ref, _ = photometric_terms(T0, pts, cur, CAM)
+    np.testing.assert_allclose(np.asarray(J), 0.5 * np.asarray(J_ref), rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(fun(jnp.zeros(6))), 0.5 * np.asarray(r), rtol=1e-5, atol=1e-4)
