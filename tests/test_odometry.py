@@ -270,5 +270,5 @@ def test_bad_input_raises_clear_value_error(make, match):
 
 def test_public_api_exports():
     for name in ("estimate_motion", "track", "Config", "MotionEstimate", "Camera", "Frame", "make_frame",
-                 "TrackConfig", "TrackStep", "Track"):
+                 "TrackConfig", "TrackStep", "Track", "Odometry"):
         assert hasattr(jaxvo, name), name
