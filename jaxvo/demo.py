@@ -105,7 +105,8 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
         mt, mpaths = true_masks(seq_dir)
         masks_true = [load_mask(p) for p in mpaths]
         cover = np.array([m.mean() for m in masks_true])
-        # masks of each method's estimates, by reference frame (the last, longest-baseline one)
+        # inlier and defined masks of each method's estimates (the segmentation's dynamic pixels
+        # counted as outliers), by reference frame (the last, longest-baseline one)
         seen = {}
         results = {}
         for method in methods:
@@ -115,10 +116,11 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
             def on_pair(step, counts=counts, method=method):
                 est = step.estimate
                 pred, val = outlier_mask(est, cam.width, cam.height, valid_too=True)
+                if step.static_mask is not None:   # the segmentation's dynamic pixels are outliers too
+                    pred, val = pred | ~step.static_mask, val | ~step.static_mask
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
-                seen.setdefault(method, {})[step.reference] = (np.asarray(est.inlier_mask, bool),
-                                                               np.asarray(est.valid_mask, bool))
+                seen.setdefault(method, {})[step.reference] = (~pred, val)
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")
             res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)

@@ -32,11 +32,15 @@ def read_run_settings(path) -> dict:
     """
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_bytes().decode("utf-8")
     except FileNotFoundError:
         raise DatasetError(f"{p}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{p}: cannot read config file ({e})") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{p}: is a folder, expected a JSON config file") from None
+    except UnicodeDecodeError as e:
+        raise DatasetError(f"{p}: config file is not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise DatasetError(f"{p}: cannot read config file ({e.strerror or e})") from None
     if text.lstrip().startswith("#"):
         found = {}
         for line in text.splitlines():
@@ -57,7 +61,7 @@ def read_run_settings(path) -> dict:
         raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno}) nor a jaxvo trajectory file") \
             from None
     if not isinstance(data, dict):
-        raise DatasetError(f"{p}: expected a JSON object of Config fields")
+        raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
     return {"config": data}
 
 
@@ -116,6 +120,7 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
     if over:
         seq.camera = dataclasses.replace(seq.camera, **over)
         seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
+        seq.camera.validate()
     return seq
 
 
@@ -217,6 +222,8 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
             writer.write(stamps[i + 1], pose)
         if mask_dir is not None:
             m = outlier_mask(est, W, H)
+            if step.static_mask is not None:   # what the segmentation marked dynamic is an outlier too
+                m = m | ~step.static_mask
             p = mask_dir / f"{stamp_name(stamps[ref])}.png"
             if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
                 raise OSError(f"{p}: could not write mask image")
