@@ -7,9 +7,9 @@ persistent static/dynamic segmentation) once along the sequence, seed 0, and wri
 * ``bonn_segmentation.png``: reference frames where people cover much of the image; blue =
   inliers of the estimate, green = outliers or pixels the segmentation marks dynamic,
   grey = no depth / not seen in the current frame;
-* ``bonn_map.png``: the map preview (perspective and top view): every 5th frame
-  back-projected with its estimated pose, points on pixels marked dynamic when the frame
-  was a reference painted green (``jaxvo.mapping.MOVING_COLOUR``), 1 cm voxels;
+* ``bonn_map.png``: the map preview (perspective and top view): reference frames, about every
+  5th frame, back-projected with their estimated poses, the points on pixels the segmentation
+  marked dynamic painted green (``jaxvo.mapping.MOVING_COLOUR``), 1 cm voxels;
 * with ``--ply PATH``, the coloured cloud as a PLY file (not kept in the repository: ~10 MB).
 
 Example::
@@ -82,13 +82,16 @@ def main(argv=None):
     p1 = viz.save_image(grid[::2, ::2], out / "bonn_segmentation.png")
     common.log(f"wrote {p1} (reference frames {[panels[j][0] for j in show if j in panels]})")
 
+    # map frames: reference frames (they carry a segmentation), about every `every`-th frame
+    refs = sorted(dynamic)
+    used = refs[:: max(1, round(args.every * len(refs) / len(frames)))]
     clouds = []
-    for i in range(0, len(frames), args.every):
+    for i in used:
         bgr, dep = seq.read_images(i)
         P, C, (r, c) = mapping.backproject_frame(np.ascontiguousarray(bgr[..., ::-1]),
                                                  dep.astype(np.float64) / seq.depth_scale, seq.camera,
                                                  tr.poses[i], 4.0, 2)
-        mv = dynamic.get(i, np.zeros(dep.shape, bool))[r, c]
+        mv = dynamic[i][r, c]
         clouds.append(mapping.PointCloud(P.astype(np.float32), C, mv))
     raw = mapping.PointCloud.concat(clouds)
     pts, cols, mv = mapping.voxel_downsample(raw.points, raw.colors, 0.01, raw.moving)

@@ -36,7 +36,7 @@ from jaxvo import geometry, metrics, trajectory, viz  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
 from jaxvo.datasets import TumSequence  # noqa: E402
 from jaxvo.mapping import load_mask, outlier_mask, read_moving_masks  # noqa: E402
-from jaxvo.odometry import METHODS, Config  # noqa: E402
+from jaxvo.odometry import METHODS, Config, TrackConfig, track  # noqa: E402
 
 SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast")
 SIZES = {"640x480": 0, "320x240": 1, "160x120": 2}
@@ -61,7 +61,9 @@ def parse_args(argv=None):
     ap.add_argument("--frames", type=int, default=90, help="frames per sequence (30 Hz; default 90)")
     ap.add_argument("--quick", action="store_true", help="4 frames per sequence (a smoke run)")
     ap.add_argument("--size", choices=list(SIZES), default="640x480", help="image size (default 640x480)")
-    ap.add_argument("--methods", default=",".join(METHODS), help="comma list of classic, huber, ransac")
+    ap.add_argument("--methods", default=",".join(METHODS + ("default",)),
+                    help="comma list of classic, huber, ransac (every consecutive pair, the paper's protocol) "
+                         "and default (jaxvo's default odometry: ransac with segmented keyframes, jaxvo.track)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the scenes and of RANSAC")
     ap.add_argument("--sensor", dest="sensor", action="store_true", default=True,
                     help="Kinect-like sensor effects (default)")
@@ -79,7 +81,7 @@ def parse_args(argv=None):
     if bad:
         ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(SEQUENCES)}")
     a.methods = [m.strip() for m in a.methods.split(",") if m.strip()]
-    bad = [m for m in a.methods if m not in METHODS]
+    bad = [m for m in a.methods if m not in METHODS + ("default",)]
     if bad:
         ap.error(f"unknown method(s) {', '.join(bad)}; choose from {', '.join(METHODS)}")
     return a
@@ -124,8 +126,44 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
             "est_angle": float(np.degrees(geometry.rotation_angle(est_rel[:3, :3])))}
 
 
+def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
+    """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
+    form as :func:`run_one`. Its outlier mask (on the reference of each estimate) is the estimate's
+    outliers plus what the segmentation marked dynamic; seconds per frame include the map updates."""
+    cam = seq.camera
+    counts = np.zeros(4, np.int64)
+    cover = np.array([m.mean() for m in true_masks[:-1]])
+    show = int(np.argmax(cover)) if cover.size else 0
+    shown, secs, ratio, last = [None], [], [], [time.perf_counter()]
+
+    def on_step(step):
+        est = step.estimate
+        pred, val = outlier_mask(est, cam.width, cam.height), np.asarray(est.valid_mask, bool)
+        if step.static_mask is not None:
+            pred, val = pred | ~step.static_mask, val | ~step.static_mask
+        s = metrics.mask_scores(pred, true_masks[step.reference], val)
+        counts[:] += (s.tp, s.fp, s.fn, s.tn)
+        if step.reference == show:
+            shown[0] = (~pred, val, show)
+        ratio.append(float(est.inlier_ratio))
+        now = time.perf_counter()
+        secs.append(now - last[0])
+        last[0] = now
+
+    t0 = time.perf_counter()
+    tr = track(frames, cam, Config(), key, policy=TrackConfig(), callback=on_step)
+    tp, fp, fn, tn = (int(c) for c in counts)
+    return {"relative": tr.relative, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
+            time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
+            "mask": {"precision": tp / (tp + fp) if tp + fp else None, "recall": tp / (tp + fn) if tp + fn else None,
+                     "iou": tp / (tp + fp + fn) if tp + fp + fn else None, "tp": tp, "fp": fp, "fn": fn, "tn": tn},
+            "shown": shown[0]}
+
+
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key) -> dict:
     """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts."""
+    if method == "default":
+        return run_default(seq, frames, true_masks, key)
     cam = seq.camera
     cfg = Config(method=method)
     P = len(frames) - 1
@@ -172,7 +210,7 @@ def figures(name: str, seq: TumSequence, runs: Dict[str, dict], fig_dir: Path, f
         viz.plot_errors_over_time(times, errs, ylabel="translational error [mm/frame]",
                                   title=f"{name}: translational error per frame"),
         fig_dir / f"{name}_translational_error.png"))
-    m = "ransac" if "ransac" in runs else next(iter(runs))
+    m = "default" if "default" in runs else "ransac" if "ransac" in runs else next(iter(runs))
     if runs[m]["shown"] is not None:
         inl, val, k = runs[m]["shown"]
         out["overlay"] = str(viz.save_figure(

@@ -20,7 +20,8 @@ metres (0 = invalid); pixels u = column, v = row, centres at integers.
 from jaxvo import geometry
 from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
 from jaxvo.frame import Frame, make_frame
-from jaxvo.odometry import METHODS, Config, MotionEstimate, Track, TrackConfig, TrackStep, estimate_motion, track
+from jaxvo.odometry import (METHODS, Config, MotionEstimate, Odometry, Track, TrackConfig, TrackStep, estimate_motion,
+                            track)
 from jaxvo.datasets import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
 from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.metrics import ate, mask_scores, rpe
@@ -30,7 +31,7 @@ from jaxvo.evaluation import evaluate, trajectory_errors
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
     "Frame", "make_frame", "METHODS", "Config", "MotionEstimate", "Track", "TrackConfig", "TrackStep",
-    "estimate_motion", "track",
+    "estimate_motion", "track", "Odometry",
     "DatasetError", "TumSequence", "IclNuimSequence", "RedwoodSequence", "open_sequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
     "rpe", "ate", "mask_scores",
     "RunResult", "run_sequence", "load_config", "load_sequence", "evaluate", "trajectory_errors",

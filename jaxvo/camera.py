@@ -18,6 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxvo.validation import check_fields, integer, real
+
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
     "camera_for_sequence", "camera_for_size", "backproject", "project",
@@ -55,6 +57,11 @@ class Camera:
     def with_size(self, width: int, height: int) -> "Camera":
         return dataclasses.replace(self, width=int(width), height=int(height))
 
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad field: fx, fy finite and > 0, cx in [0, width],
+        cy in [0, height] (the principal point lies inside the image), width, height integers >= 1."""
+        check_fields(self, _RULES, "Camera")
+
     def __repr__(self) -> str:  # short and readable even with array leaves
         def f(x):
             try:
@@ -64,6 +71,9 @@ class Camera:
         return (f"Camera(fx={f(self.fx)}, fy={f(self.fy)}, cx={f(self.cx)}, cy={f(self.cy)}, "
                 f"width={self.width}, height={self.height})")
 
+
+_RULES = {"fx": real(0, lo_open=True), "fy": real(0, lo_open=True), "cx": real(0, "width"),
+          "cy": real(0, "height"), "width": integer(1), "height": integer(1)}
 
 jax.tree_util.register_dataclass(Camera, data_fields=["fx", "fy", "cx", "cy"], meta_fields=["width", "height"])
 

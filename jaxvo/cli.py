@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import functools
 import json
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import click
 import numpy as np
@@ -24,6 +27,7 @@ from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
 from jaxvo.datasets import DatasetError
 from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
+from jaxvo.outputs import check_output, check_output_folder, finish, partial_path
 from jaxvo.runner import RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence
 
 # run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
@@ -42,7 +46,16 @@ Conventions:
   * RPE: translational error in m, rotational in deg, per delta (m/s and deg/s for
     a 1-second delta, as in TUM evaluate_rpe.py); ATE: RMSE in m after a rigid
     least-squares (Horn/Umeyama) alignment of the estimate to the ground truth.
-  * bad input gives one line 'error: ...' on stderr and exit code 2."""
+  * bad input gives one line 'error: ...' on stderr and exit code 2; Ctrl-C exit code 130.
+  * outputs are written under a .partial name and renamed when complete; an output that
+    would replace or land inside an input is refused unless --force."""
+
+#: seeds: jax.random.key takes at most a 64-bit signed integer
+SEED = click.IntRange(0, 2 ** 63 - 1)
+POSITIVE = click.FloatRange(min=0, min_open=True)
+FORCE = click.option("--force", is_flag=True,
+                     help="Write even where an output would replace or land inside an input, or replace a "
+                          "non-empty output folder.")
 
 # ----------------------------------------------------------------------------- errors
 
@@ -50,13 +63,16 @@ class _Fail(Exception):
     """Raised to end a command with ``error: message`` and exit code 2."""
 
 
+def _one_line_text(msg: str) -> str:
+    return " ".join(ln.strip() for ln in str(msg).splitlines() if ln.strip())
+
+
 def _one_line(e: BaseException) -> str:
     if isinstance(e, OSError) and not isinstance(e, DatasetError) and e.filename and e.strerror:
         msg = f"{e.filename}: {e.strerror}"
     else:
         msg = str(e) or type(e).__name__
-    lines = [ln.strip() for ln in msg.splitlines() if ln.strip()]
-    return " ".join(lines) if lines else type(e).__name__
+    return _one_line_text(msg) or type(e).__name__
 
 
 def _handle_errors(f):
@@ -98,6 +114,118 @@ def _device() -> str:
     return f"{d.platform}:{d.id}{kind}"
 
 
+def _exit_now(code: int) -> None:
+    """Flush and leave at once, skipping interpreter teardown (which can crash while XLA is busy)."""
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+class _Group(click.Group):
+    """The ``jaxvo`` group: click's usage errors as one ``error:`` line (exit 2), Ctrl-C as exit 130."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        _quiet_native_stderr()
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as e:
+            hint = f" (see '{e.ctx.command_path} --help')" if e.ctx is not None else ""
+            click.echo(f"error: {_one_line_text(e.format_message())}{hint}", err=True)
+            sys.exit(2)
+        except click.ClickException as e:
+            click.echo(f"error: {_one_line_text(e.format_message())}", err=True)
+            sys.exit(2)
+        except (click.Abort, KeyboardInterrupt):
+            _ignore_ctrl_c()
+            click.echo("interrupted (Ctrl-C); unfinished outputs keep their .partial names", err=True)
+            _exit_now(130)
+        if not standalone_mode:
+            return rv
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _ignore_ctrl_c() -> None:
+    """While we report an interrupt and leave, a second Ctrl-C must not end in a traceback."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _quiet_native_stderr() -> None:
+    """Send what C libraries write straight to file descriptor 2 (libpng's and OpenCV's warnings
+    about a damaged PNG, XLA's log lines) to /dev/null, keeping Python's ``sys.stderr`` (our
+    messages, the progress bar) on the real stderr, so a bad file gives one ``error:`` line and
+    nothing before it. Only for a real terminal/pipe stderr; ``JAXVO_NATIVE_STDERR=1`` keeps it."""
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
+    if os.environ.get("JAXVO_NATIVE_STDERR") or sys.stderr is not sys.__stderr__:
+        return
+    try:
+        if sys.stderr.fileno() != 2:
+            return
+        sys.stderr.flush()
+        keep = os.dup(2)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 2)
+        os.close(devnull)
+    except (AttributeError, ValueError, OSError):
+        return
+    sys.stderr = os.fdopen(keep, "w", buffering=1, encoding=sys.__stderr__.encoding or "utf-8",
+                           errors="backslashreplace")
+
+
+class _CtrlC:
+    """Ctrl-C for a long job that runs JAX: the job runs in a worker thread and SIGINT only sets a
+    flag, so the main thread notices at once even while XLA compiles (which no Python signal
+    handler can interrupt). The job checks :meth:`check` between steps and ends cleanly; a job
+    that does not get there within ``grace`` seconds (still compiling) is abandoned:
+    ``on_abandon()`` reports, and the process exits 130 without tearing XLA down."""
+
+    def __init__(self, grace: float = 3.0):
+        self.flag = threading.Event()
+        self.grace = grace
+
+    def check(self, *_) -> None:
+        if self.flag.is_set():
+            raise KeyboardInterrupt
+
+    def run(self, fn: Callable, on_abandon: Callable[[], None] = lambda: None):
+        if threading.current_thread() is not threading.main_thread():
+            return fn()
+        box = {}
+
+        def target():
+            try:
+                box["value"] = fn()
+            except BaseException as e:  # re-raised in the main thread
+                box["error"] = e
+        worker = threading.Thread(target=target, name="jaxvo-job", daemon=True)
+        old = signal.signal(signal.SIGINT, lambda signum, frame: self.flag.set())
+        try:
+            worker.start()
+            while worker.is_alive() and not self.flag.is_set():
+                worker.join(0.1)
+            if worker.is_alive():
+                worker.join(self.grace)
+                if worker.is_alive():
+                    _ignore_ctrl_c()
+                    on_abandon()
+                    _exit_now(130)
+        finally:
+            signal.signal(signal.SIGINT, signal.SIG_IGN if self.flag.is_set() else old)
+        if "error" in box:
+            raise box["error"]
+        return box["value"]
+
+
+def _pose_count(path) -> int:
+    try:
+        return sum(1 for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.startswith("#"))
+    except OSError:
+        return 0
+
+
 # ----------------------------------------------------------------------------- helpers
 
 def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
@@ -109,10 +237,12 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
-    if frame_to_frame:
-        base = TrackConfig.frame_to_frame()
+    if frame_to_frame or (gap == 1 and not lag):
+        base, gap = TrackConfig.frame_to_frame(), None
     if gap is None:
         policy = base if lag is None else base._replace(lag=int(lag))
+    elif int(gap) == 1:
+        policy = TrackConfig.frame_to_frame(lag=0 if lag is None else int(lag))
     else:
         policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
     if segment is not None:
@@ -134,7 +264,7 @@ def _size_option(ctx, param, value):
 
 # ----------------------------------------------------------------------------- the group
 
-@click.group(help=f"""jaxvo: robust dense RGB-D visual odometry (classic, Huber and RANSAC) in JAX.
+@click.group(cls=_Group, help=f"""jaxvo: robust dense RGB-D visual odometry (classic, Huber and RANSAC) in JAX.
 
 \b
   jaxvo demo                          # synthetic dynamic scene, all three methods, figures
@@ -168,12 +298,15 @@ as 1/5000 m) stops the run with the --depth-scale to pass.
 
 The trajectory file starts with '#' lines naming jaxvo's version, the method, seed,
 full config and keyframe policy (JSON) and the reader's settings (jaxvo run SEQ --config
-TRAJ reruns it bitwise); it is written and flushed one line per frame while the run goes
-on, the first frame at the identity, so an interrupted run (Ctrl-C, or a killed process)
-keeps every finished frame; Ctrl-C prints the summary of what was done.
+TRAJ reruns it bitwise); it is written and flushed one line per frame to OUT.partial while
+the run goes on (the first frame at the identity) and renamed to OUT when complete, so a run
+that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in OUT.partial and
+never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was done and
+exits with code 130. Outputs that would replace or land inside an input are refused
+(--force to allow).
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
-inliers or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
+inliers, too little depth or texture agreement, or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
 which includes JAX compilation) and frames/s after it. With groundtruth.txt it also prints
 RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long enough
 (m/s, deg/s), and ATE (m, after alignment).
@@ -192,15 +325,15 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--max-frames", type=click.IntRange(min=2), default=None, help="Use at most N frames.")
 @click.option("--start", type=click.IntRange(min=0), default=0, show_default=True,
               help="Index of the first (associated) frame to use.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
               help="JSON object of jaxvo.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, \"thresh_lum\": 30, "
                    "\"blocks\": [4, 2, 1, 1]}), or a trajectory file written by jaxvo run: its '#' header gives "
                    "the config, seed, keyframe policy, frames, depth scale and intrinsics, so the run is "
                    "reproduced bitwise. Options given on the command line override it.")
-@click.option("--thresh-lum", type=float, default=None,
+@click.option("--thresh-lum", type=POSITIVE, default=None,
               help="Inlier threshold on |luminance residual|, 0-255 units. [default: 30]")
-@click.option("--thresh-depth", type=float, default=None,
+@click.option("--thresh-depth", type=POSITIVE, default=None,
               help="Inlier threshold on |depth residual|, metres. [default: 0.05]")
 @click.option("--finest-level", type=click.IntRange(min=0), default=None,
               help="Stop the coarse-to-fine estimate at this pyramid level (0 = full resolution, 1 = half, ...); "
@@ -226,7 +359,7 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @click.option("--fy", type=float, default=None, help="Override the focal length fy (pixels).")
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
-@click.option("--max-dt", type=float, default=0.02, show_default=True,
+@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
               help="Each frame is estimated against a reference (keyframe) up to this many frames back "
@@ -246,11 +379,12 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="The seed paper's algorithm as published: jaxvo.Config.paper(method) and "
                    "--frame-to-frame.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
 @_compilation_cache
 @_handle_errors
 def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
-            keyframe_lag, segment, frame_to_frame, paper, no_progress):
+            keyframe_lag, segment, frame_to_frame, paper, no_progress, force):
     from jaxvo.config import TrackConfig
 
     settings = read_run_settings(config_file) if config_file is not None else {}
@@ -282,6 +416,9 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
         c = sq.get("camera")
         if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4 and isinstance(c, dict):
             fx, fy, cx, cy = c.get("fx"), c.get("fy"), c.get("cx"), c.get("cy")
+    check_output(out, [sequence_dir, config_file, mask_dir], force, "--out")
+    if save_masks is not None:
+        check_output(save_masks, [sequence_dir, config_file, mask_dir], force, "--save-masks")
     seq = load_sequence(sequence_dir, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
                         start=start, max_frames=max_frames, mask_dir=mask_dir)
     if len(seq) < 2:
@@ -291,18 +428,42 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
                f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}, device {_device()}", err=True)
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
+    # the trajectory grows, flushed line by line, under a .partial name; it gets its name when complete
+    partial = partial_path(out)
+    done = []
+    ctrl_c = _CtrlC()
+
+    def on_pair(step):
+        done.append(bool(step.valid))
+        ctrl_c.check()
+
+    def abandoned():
+        if pbar is not None:
+            pbar.close()
+        when = "while the first pair was compiling" if not done else f"after {len(done)} pairs"
+        click.echo(f"interrupted (Ctrl-C) {when}\nframes        {_pose_count(partial)} ({len(done)} pairs), "
+                   f"failures {done.count(False)}\ntrajectory    {partial} ({_pose_count(partial)} poses)")
     try:
-        res = run_sequence(seq, config, seed, out=out, save_masks=save_masks, pbar=pbar, policy=policy)
+        res = ctrl_c.run(lambda: run_sequence(seq, config, seed, out=partial, save_masks=save_masks, pbar=pbar,
+                                              policy=policy, on_pair=on_pair), abandoned)
+    except (DatasetError, ValueError, OSError) as e:
+        n = _pose_count(partial)
+        raise DatasetError(_one_line(e) + (f" ({n} finished poses kept in {partial})" if n else "")) from None
     finally:
         if pbar is not None:
             pbar.close()
+    if res.interrupted:
+        _print_run_summary(res, partial, gt, max_dt)
+        _exit_now(130)
+    finish(partial, out)
     _print_run_summary(res, out, gt, max_dt)
 
 
 def _print_run_summary(res: RunResult, out, gt, max_dt):
     lines = []
     if res.interrupted:
-        lines.append("interrupted (Ctrl-C): summary of the frames done so far")
+        lines.append("interrupted (Ctrl-C): summary of the frames done so far (the trajectory keeps its "
+                     ".partial name)")
     lines.append(f"frames        {len(res.stamps)} ({res.pairs} pairs), failures {res.failures}")
     lines.append(f"inlier ratio  {fmt(float(np.mean(res.inlier_ratio)) if res.pairs else float('nan'), 3)} (mean)")
     lines.append(f"compile       {fmt(res.compile_s, 1)} s (first pair, compilation included)")
@@ -351,10 +512,10 @@ translational drift (RPE per pair) and ATE per frame over time.
 """)
 @click.argument("groundtruth", type=click.Path(path_type=Path))
 @click.argument("est", type=click.Path(path_type=Path))
-@click.option("--delta", type=float, default=1.0, show_default=True, help="RPE pair spacing (see --delta-unit).")
+@click.option("--delta", type=POSITIVE, default=1.0, show_default=True, help="RPE pair spacing (see --delta-unit).")
 @click.option("--delta-unit", type=click.Choice(["s", "f"]), default="s", show_default=True,
               help="s = seconds (drift in m/s and deg/s, the paper's Table I), f = frames.")
-@click.option("--max-dt", type=float, default=0.02, show_default=True,
+@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum estimate/ground-truth timestamp difference, seconds.")
 @click.option("--json", "json_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write the results as JSON.")
@@ -365,8 +526,12 @@ translational drift (RPE per pair) and ATE per frame over time.
 @click.option("--bonn/--no-bonn", default=None,
               help="Force / forbid the Bonn marker-to-camera ground-truth conversion. [default: by folder name]")
 @click.option("--per-pair", is_flag=True, help="Include per-pair errors in the JSON output.")
+@FORCE
 @_handle_errors
-def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, masks_dir, bonn, per_pair):
+def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, masks_dir, bonn, per_pair, force):
+    for out, opt in ((json_file, "--json"), (plot_file, "--plot")):
+        if out is not None:
+            check_output(out, [groundtruth, est, masks_dir], force, opt)
     res = evaluate(groundtruth, est, delta, delta_unit, max_dt, masks_dir, bonn)
     r, a, m = res["rpe"], res["ate"], res["masks"]
     u = "s" if delta_unit == "s" else "frame"
@@ -388,10 +553,12 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
              "ate": a.to_dict(per_frame=per_pair), "masks": m.to_dict() if m is not None else None}
         if m is not None:
             d["mask_frames"] = res["mask_frames"]
+        tmp = partial_path(json_file)
         try:
-            Path(json_file).write_text(json.dumps(d, indent=1) + "\n")
+            tmp.write_text(json.dumps(d, indent=1) + "\n")
         except OSError as e:
             raise DatasetError(f"{json_file}: cannot write JSON ({e.strerror or e})") from None
+        finish(tmp, json_file)
     if plot_file is not None:
         _eval_plot(res, plot_file, delta, delta_unit)
 
@@ -408,10 +575,12 @@ def _eval_plot(res, plot_file, delta, delta_unit):
     fig = viz.plot_eval(gP[keep, :3, 3], a.aligned[:, :3, 3], r.stamps_j - t0, r.trans / r.delta,
                         a.stamps - t0, a.errors, rpe_label=f"RPE trans [m/{u}] (delta {delta:g} {u})",
                         title=f"{Path(str(res['gt_file'])).parent.name}")
+    tmp = partial_path(plot_file, keep_suffix=True)
     try:
-        viz.save_figure(fig, plot_file)
+        viz.save_figure(fig, tmp)
     except (OSError, ValueError) as e:
-        raise DatasetError(f"{plot_file}: cannot write figure ({e})") from None
+        raise DatasetError(f"{plot_file}: cannot write figure ({_one_line(e)})") from None
+    finish(tmp, plot_file)
 
 
 # ----------------------------------------------------------------------------- synth / augment
@@ -442,7 +611,7 @@ work on it unchanged.
 @click.argument("name", type=click.Choice(["seq0", "seq1", "seq2", "seq3", "handheld-fast"]))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frames", type=click.IntRange(min=2), default=300, show_default=True, help="Number of frames (30 Hz).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene, textures and motions.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the scene, textures and motions.")
 @click.option("--size", callback=_size_option, default="640x480", show_default=True,
               help="Image size WIDTHxHEIGHT (e.g. 640x480, 320x240, 424x240, 848x480); intrinsics are the "
                    "default 525/319.5/239.5 camera scaled to it (jaxvo.camera.camera_for_size).")
@@ -450,19 +619,22 @@ work on it unchanged.
               help="Kinect-like sensor effects (depth noise ~Z^2, quantisation, missing depth at edges and "
                    "beyond 4 m, intensity noise, exposure changes).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
 @_handle_errors
-def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress):
+def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress, force):
     from jaxvo.synthetic import SensorModel, generate
 
+    check_output_folder(out_dir, [], force)
     cam = camera_for_size(DEFAULT, *size)
+    tmp = partial_path(out_dir, fresh=True)
     pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
-        out = generate(name, out_dir, frames=frames, seed=seed, camera=cam,
-                       sensor=SensorModel() if sensor else None,
-                       progress=_progress_cb(pbar) if pbar is not None else None)
+        generate(name, tmp, frames=frames, seed=seed, camera=cam, sensor=SensorModel() if sensor else None,
+                 progress=_progress_cb(pbar) if pbar is not None else None)
     finally:
         if pbar is not None:
             pbar.close()
+    out = finish(tmp, out_dir)
     click.echo(f"wrote {frames} frames of {name} ({size[0]}x{size[1]}, seed {seed}) to {out}")
 
 
@@ -483,26 +655,31 @@ the first frame).
 @click.option("--persons", type=click.IntRange(min=1), default=1, show_default=True, help="Number of occluders K.")
 @click.option("--coverage", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.3,
               show_default=True, help="Target fraction of the image covered by the occluders together.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of shapes, textures and paths.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of shapes, textures and paths.")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Write only the first N frames.")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Intrinsics of the real sequence. [default: from the folder name]")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
 @_handle_errors
-def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_preset, no_progress):
+def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_preset, no_progress, force):
     from jaxvo.synthetic import augment
 
     real_seq = Path(real_seq)
     if not real_seq.is_dir():
         raise DatasetError(f"{real_seq}: sequence folder does not exist")
+    check_output_folder(out_dir, [real_seq], force)
+    tmp = partial_path(out_dir, fresh=True)
+    check_output(tmp, [real_seq], force)
     pbar = None if no_progress else progress_bar(total=max_frames or 0, unit="frame", desc="augment")
     try:
-        out = augment(real_seq, out_dir, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
-                      camera=PRESETS[camera_preset] if camera_preset else None,
-                      progress=_progress_cb(pbar) if pbar is not None else None)
+        augment(real_seq, tmp, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
+                camera=PRESETS[camera_preset] if camera_preset else None,
+                progress=_progress_cb(pbar) if pbar is not None else None)
     finally:
         if pbar is not None:
             pbar.close()
+    out = finish(tmp, out_dir)
     info = {}
     try:
         info = json.loads((Path(out) / "info.json").read_text())
@@ -542,7 +719,7 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
               show_default=True, help="Output folder.")
 @click.option("--frames", type=click.IntRange(min=3), default=100, show_default=True,
               help="Number of frames (30 Hz).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene and of RANSAC.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the scene and of RANSAC.")
 @click.option("--sequence", "seq_name", type=click.Choice(["seq0", "seq1", "seq2", "seq3", "handheld-fast"]),
               default="seq2", show_default=True,
               help="Which synthetic motion (see jaxvo synth --help); seq2 is the paper's pan-tilt scene.")
@@ -553,8 +730,9 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
 @_compilation_cache
 @_handle_errors
 def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress):
-    result = run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size, sensor=sensor,
-                      progress=not no_progress)
+    result = _CtrlC().run(lambda: run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size,
+                                           sensor=sensor, progress=not no_progress),
+                          lambda: click.echo("\ninterrupted (Ctrl-C)", err=True))
     click.echo(result["table"])
     click.echo(f"\nfigures and results in {out_dir}/ ({result['wall_s']:.0f} s)")
 
@@ -632,28 +810,33 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @click.option("--use-masks", is_flag=True,
               help="Label moving points from the sequence's masks/ (masks.txt) instead of running the estimator.")
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
                    "the folder name]")
 @click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
-@click.option("--max-dt", type=float, default=0.02, show_default=True,
+@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
-            no_labels, seed, camera_preset, depth_scale, max_dt, no_progress):
+            no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
+    from jaxvo.datasets import read_pose_file
     from jaxvo.mapping import build_map, render_preview, write_ply
     from jaxvo.odometry import Config
-    from jaxvo.trajectory import read_tum_trajectory
 
     if use_masks and no_labels:
         raise _Fail("--use-masks and --no-labels exclude each other")
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
+    check_output(out_ply, [sequence_dir, traj], force)
+    if preview is not None:
+        check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
-    t_traj, T_traj = read_tum_trajectory(traj)
+    # a ground-truth file may repeat a timestamp (TUM's tools keep the first); an estimate may not
+    t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
     if len(t_traj) == 0:
         raise DatasetError(f"{traj}: no poses in the trajectory file")
     labels = None if no_labels else ("masks" if use_masks else "estimate")
@@ -666,16 +849,24 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
         if pbar is not None:
             pbar.total = total
             pbar.update(done - pbar.n)
+    ctrl_c = _CtrlC()
+
+    def prog_or_stop(done, total):
+        ctrl_c.check()
+        prog(done, total)
     try:
-        res = build_map(seq, t_traj, T_traj, every=every, voxel=voxel, max_depth=max_depth, labels=labels,
-                        config=config, seed=seed, max_dt=max_dt, progress=prog)
+        res = ctrl_c.run(lambda: build_map(seq, t_traj, T_traj, every=every, voxel=voxel, max_depth=max_depth,
+                                           labels=labels, config=config, seed=seed, max_dt=max_dt,
+                                           progress=prog_or_stop))
     finally:
         if pbar is not None:
             pbar.close()
     cloud = res.cloud
     if len(cloud) == 0:
         raise DatasetError(f"{sequence_dir}: no pixel with valid depth <= {max_depth} m in the frames used")
-    write_ply(out_ply, cloud.points, cloud.display_colors())
+    tmp = partial_path(out_ply, keep_suffix=True)
+    write_ply(tmp, cloud.points, cloud.display_colors())
+    finish(tmp, out_ply)
     lines = [f"frames        {len(res.frames)} used (every {every} of {len(seq)}; frames with a pose within "
              f"{max_dt} s)",
              f"points        {len(cloud)} after a {voxel:g} m voxel grid ({res.raw_points} back-projected), "
@@ -684,8 +875,10 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
     if labels == "estimate":
         lines.insert(1, f"inlier ratio  {fmt(float(np.nanmean(res.inlier_ratio)), 3)} (mean, {method})")
     if preview is not None:
-        render_preview(cloud.points, cloud.display_colors(), preview, poses=res.poses,
+        tmp = partial_path(preview, keep_suffix=True)
+        render_preview(cloud.points, cloud.display_colors(), tmp, poses=res.poses,
                        title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else ""))
+        finish(tmp, preview)
         lines.append(f"preview       {preview}")
     lines.append(f"time          {res.seconds:.1f} s")
     click.echo("\n".join(lines))

@@ -13,6 +13,8 @@ from typing import Any, NamedTuple, Optional, Tuple
 import jax
 import numpy as np
 
+from jaxvo.validation import check_fields, check_names, choice, flag, integer, positive_ints, real
+
 __all__ = ["METHODS", "Config", "TrackConfig"]
 
 METHODS = ("classic", "huber", "ransac")
@@ -31,6 +33,10 @@ class Config:
     huber_k: Huber threshold in units of the MAD scale estimate.
     max_depth: depth beyond this (metres) is ignored.
     min_inlier_ratio: below this final inlier ratio the estimate is flagged invalid.
+    min_depth_agreement, min_photometric_agreement: the estimate is also flagged invalid when
+      fewer of the overlapping pixels agree in depth, or fewer of the textured pixels that
+      agree in depth agree in luminance too (see jaxvo.odometry.TrustStats; measured with
+      experiments/failure_flag.py).
     n_points: *static*, pixels per RANSAC sample (the paper's n = 6).
     patch_radius: *static*, neighbourhood radius around each sampled pixel (1 -> 3x3).
     max_hypotheses: *static*, hard cap on k per level.
@@ -100,6 +106,8 @@ class Config:
     score_selection: str = "grid"
     consensus_weights: str = "huber"
     prior_candidate: str = "refined"
+    min_depth_agreement: Any = 0.35
+    min_photometric_agreement: Any = 0.65
 
     @classmethod
     def paper(cls, method: str = "ransac", **changes) -> "Config":
@@ -111,7 +119,15 @@ class Config:
                    prior_candidate="raw",
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
+    @classmethod
+    def from_dict(cls, values, base: Optional["Config"] = None) -> "Config":
+        """``base`` (default ``Config()``) with the fields in ``values`` (e.g. parsed JSON) changed,
+        lists turned into tuples (``blocks``), and validated. Unknown names and bad values raise
+        ValueError naming them."""
+        return _from_json(cls, values, [f.name for f in dataclasses.fields(cls)], base)
+
     def replace(self, **changes) -> "Config":
+        check_names(changes, _RULES, "Config")
         return dataclasses.replace(self, **changes)
 
     def to_json(self) -> str:
@@ -125,28 +141,46 @@ class Config:
         return _from_json(cls, text, [f.name for f in dataclasses.fields(cls)])
 
     def validate(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
-        for name, allowed in _CHOICES.items():
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"config.{name} must be one of {', '.join(map(repr, allowed))}, "
-                                 f"got {getattr(self, name)!r}")
-        for name in ("n_points", "max_hypotheses", "batch_size", "max_iterations", "hypothesis_iterations",
-                     "irls_rounds", "irls_iterations", "refine_rounds", "max_score_pixels"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"config.{name} must be >= 1, got {getattr(self, name)}")
-        if self.finest_level < 0 or (self.num_levels is not None and self.finest_level >= self.num_levels):
-            raise ValueError(f"config.finest_level={self.finest_level} must lie in [0, num_levels)")
-        if self.ransac_finest < 0:
-            raise ValueError(f"config.ransac_finest must be >= 0, got {self.ransac_finest}")
-        if any(int(b) < 1 for b in self.blocks):
-            raise ValueError(f"config.blocks must be >= 1, got {self.blocks}")
+        """Raise ValueError naming the first field whose value breaks its rule in ``_RULES``
+        (type, finiteness, range), e.g. ``Config.p must be a number in (0, 1), got 1.5``."""
+        check_fields(self, _RULES, "Config")
 
 
-# the string-valued static fields and their allowed values
-_CHOICES = {"terms": ("photometric", "rgbd"), "hypothesis_terms": ("photometric", "rgbd"),
-            "prior_candidate": ("raw", "refined"), "consensus_weights": ("binary", "huber"),
-            "score_selection": ("grid", "gradient"), "scoring": ("count", "msac")}
+# One rule per field (jaxvo.validation): a new field needs a line here, or validate() fails.
+_RULES = {
+    "method": choice(*METHODS),
+    "p": real(0, 1, lo_open=True, hi_open=True),
+    "w": real(0, 1, hi_open=True),
+    "thresh_lum": real(0, lo_open=True),
+    "thresh_depth": real(0, lo_open=True),
+    "early_exit_ratio": real(0, 1, lo_open=True),
+    "huber_k": real(0, lo_open=True),
+    "max_depth": real(0, lo_open=True),
+    "min_inlier_ratio": real(0, 1),
+    "n_points": integer(1),
+    "patch_radius": integer(0),
+    "max_hypotheses": integer(1),
+    "batch_size": integer(1),
+    "num_levels": integer(1, 16, none_means="halve down to about 80x60"),
+    "finest_level": integer(0, "num_levels", hi_open=True),
+    "max_iterations": integer(1),
+    "hypothesis_iterations": integer(1),
+    "irls_rounds": integer(1),
+    "irls_iterations": integer(1),
+    "refine_rounds": integer(1),
+    "ransac_finest": integer(0),
+    "blocks": positive_ints(),
+    "max_score_pixels": integer(1),
+    "depth_weight": real(0, lo_open=True),
+    "terms": choice("photometric", "rgbd"),
+    "hypothesis_terms": choice("photometric", "rgbd"),
+    "scoring": choice("count", "msac"),
+    "score_selection": choice("grid", "gradient"),
+    "consensus_weights": choice("binary", "huber"),
+    "prior_candidate": choice("raw", "refined"),
+    "min_depth_agreement": real(0, 1),
+    "min_photometric_agreement": real(0, 1),
+}
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
@@ -235,19 +269,22 @@ class TrackConfig(NamedTuple):
         return _from_json(cls, text, list(cls._fields))
 
     def validate(self) -> None:
-        if int(self.max_gap) < 1:
-            raise ValueError(f"track config: max_gap must be >= 1, got {self.max_gap}")
-        if not 0 <= int(self.lag) < int(self.max_gap):
-            raise ValueError(f"track config: lag must lie in [0, max_gap), got lag={self.lag}, "
-                             f"max_gap={self.max_gap}")
-        if not (self.max_step > 0 and self.max_step_deg > 0):
-            raise ValueError("track config: max_step and max_step_deg must be > 0")
-        if not 0 <= self.switch_ratio < 1:
-            raise ValueError(f"track config: switch_ratio must lie in [0, 1), got {self.switch_ratio}")
-        if not (self.switch_baseline > 0 and self.switch_deg > 0):
-            raise ValueError("track config: switch_baseline and switch_deg must be > 0")
-        if not 0 <= int(self.history) <= 6:
-            raise ValueError(f"track config: history must lie in [0, 6], got {self.history}")
+        """Raise ValueError naming the first field that breaks its rule (see ``_TRACK_RULES``)."""
+        check_fields(self, _TRACK_RULES, "TrackConfig")
+
+
+_TRACK_RULES = {
+    "max_gap": integer(1),
+    "lag": integer(0, "max_gap", hi_open=True),
+    "hold_invalid": flag(),
+    "max_step": real(0, lo_open=True),
+    "max_step_deg": real(0, 180, lo_open=True),
+    "segment": flag(),
+    "switch_ratio": real(0, 1, hi_open=True),
+    "switch_baseline": real(0, lo_open=True),
+    "switch_deg": real(0, 180, lo_open=True),
+    "history": integer(0, 6),
+}
 
 
 def _plain(v):
@@ -269,13 +306,15 @@ def _to_json(obj, names) -> str:
     return json.dumps({n: _plain(getattr(obj, n)) for n in names})
 
 
-def _from_json(cls, text, names):
+def _from_json(cls, text, names, base=None):
+    """A validated ``cls`` from JSON text or a parsed dict of fields (lists -> tuples), the other
+    fields from ``base`` (default ``cls()``); unknown names and bad values raise ValueError."""
     data = json.loads(text) if isinstance(text, (str, bytes)) else text
     if not isinstance(data, dict):
-        raise ValueError(f"{cls.__name__}.from_json: expected a JSON object of fields, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        raise ValueError(f"unknown {cls.__name__} field(s) {', '.join(unknown)} (known: {', '.join(sorted(names))})")
-    obj = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+        raise ValueError(f"{cls.__name__}: expected a JSON object of fields, got {type(data).__name__}")
+    check_names(data, names, cls.__name__)
+    changes = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+    obj = cls(**changes) if base is None else \
+        (base._replace(**changes) if hasattr(base, "_replace") else dataclasses.replace(base, **changes))
     obj.validate()
     return obj

@@ -12,7 +12,7 @@
 * ICL-NUIM (TUM-compatible release): ``associations.txt`` ("t depth/N.png t rgb/N.png" per line,
   either order), depth value / 5000, ground truth ``groundtruth.txt`` or ``*.gt.freiburg``:
   :class:`IclNuimSequence`;
-* Redwood / Open3D: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` folders of numbered
+* Redwood / Open3D: ``color/`` (or ``image/``) and ``depth/`` folders of numbered
   images taken in name order at 30 Hz, depth in millimetres (value / 1000), optional
   ``camera_intrinsic.json`` (Open3D's PinholeCameraIntrinsic): :class:`RedwoodSequence`.
 
@@ -159,7 +159,10 @@ def read_file_list(path) -> Tuple[np.ndarray, List[str]]:
         except ValueError:
             raise DatasetError(f"{path}:{n}: malformed line {_short(s)!r} (expected 'timestamp filename')") from None
         stamps.append(t)
-        names.append(parts[1])
+        # the rest of the line is the name when such a file exists (a name with spaces);
+        # otherwise extra columns after the first are ignored
+        rest = s.split(None, 1)[1].strip()
+        names.append(rest if rest != parts[1] and (path.parent / rest).is_file() else parts[1])
     if not stamps:
         raise DatasetError(f"{path}: no entries (only comments or empty)")
     t = np.asarray(stamps, dtype=np.float64)
@@ -172,19 +175,21 @@ def read_file_list(path) -> Tuple[np.ndarray, List[str]]:
     return t, names
 
 
-def read_pose_file(path, what: str = "trajectory") -> Tuple[np.ndarray, np.ndarray]:
+def read_pose_file(path, what: str = "trajectory", duplicates: str = "first") -> Tuple[np.ndarray, np.ndarray]:
     """Read a TUM pose file (``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments).
 
     Returns (timestamps (N,) float64 ascending, poses (N, 4, 4) float64) exactly as stored
-    (no Bonn conversion). Unsorted lines are sorted by time; of lines with the same
-    timestamp only the first is kept (the original freiburg2_desk ground truth has one such
-    duplicate). Quaternions are normalised.
+    (no Bonn conversion). Unsorted lines are sorted by time. Of lines with the same
+    timestamp, ``duplicates="first"`` keeps the first (the original freiburg2_desk ground
+    truth has one such duplicate); ``"error"`` raises naming both lines (an estimate must not
+    give one frame two poses). Quaternions are normalised.
 
     Raises DatasetError: missing file, malformed line (number of fields, non-numeric,
     non-finite, zero quaternion; with its line number), empty file.
     """
     path = Path(path)
     rows = []
+    line_of = {}
     for n, s in _data_lines(path):
         parts = s.replace(",", " ").split()
         if len(parts) != 8:
@@ -199,6 +204,10 @@ def read_pose_file(path, what: str = "trajectory") -> Tuple[np.ndarray, np.ndarr
         qn = float(np.linalg.norm(vals[4:8]))
         if qn < 1e-6:
             raise DatasetError(f"{path}:{n}: quaternion has zero norm in line {_short(s)!r}")
+        if duplicates == "error" and vals[0] in line_of:
+            raise DatasetError(f"{path}:{n}: timestamp {parts[0]} repeats line {line_of[vals[0]]} "
+                               f"(one pose per timestamp)")
+        line_of.setdefault(vals[0], n)
         rows.append(vals)
     if not rows:
         raise DatasetError(f"{path}: no poses in {what} file (only comments or empty)")
@@ -404,6 +413,9 @@ class TumSequence:
             raise ValueError(f"start must be >= 0, got {start}")
         if max_frames is not None and max_frames < 1:
             raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
+        if camera is not None and not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a jaxvo.Camera, got {camera!r}"
+                             + (f" (use jaxvo.camera.PRESETS[{camera!r}])" if isinstance(camera, str) else ""))
         self.max_dt = float(max_dt)
         self.depth_scale = float(self.DEPTH_SCALE if depth_scale is None else depth_scale)
         self._scale_given = depth_scale is not None
@@ -431,6 +443,10 @@ class TumSequence:
             self.camera, self.camera_source = camera, "given"
         else:
             self.camera, self.camera_source = sequence_camera(self.path, self._image_size(0), self.name)
+        try:
+            self.camera.validate()
+        except ValueError as e:
+            raise DatasetError(f"{self.path}: {e} (camera from {self.camera_source})") from None
         self._gt = None
         self._gt_loaded = False
         self._depth_checked = False
@@ -706,14 +722,14 @@ class IclNuimSequence(TumSequence):
 
 
 class RedwoodSequence(TumSequence):
-    """A Redwood / Open3D RGB-D folder: ``color/`` (or ``image/``, ``rgb/``) and ``depth/`` hold
+    """A Redwood / Open3D RGB-D folder: ``color/`` (or ``image/``) and ``depth/`` hold
     numbered images paired in name order; there are no timestamps, so frame k is at k / fps
     seconds (30 Hz). Depth defaults to millimetres (depth_scale 1000). An optional
     ``groundtruth.txt`` in TUM format (with those timestamps) is read like TUM's.
     Arguments as :class:`TumSequence`, plus ``fps``."""
     LAYOUT = "Redwood"
     DEPTH_SCALE = 1000.0
-    COLOR_DIRS = ("color", "image", "rgb")
+    COLOR_DIRS = ("color", "image")
 
     def __init__(self, path, *args, fps: float = 30.0, **kwargs):
         self.fps = float(fps)
@@ -723,7 +739,7 @@ class RedwoodSequence(TumSequence):
         exts = {".png", ".jpg", ".jpeg"}
         col = next((self.path / c for c in self.COLOR_DIRS if (self.path / c).is_dir()), None)
         if col is None or not (self.path / "depth").is_dir():
-            raise DatasetError(f"{self.path}: a Redwood folder needs color/ (or image/, rgb/) and depth/ folders")
+            raise DatasetError(f"{self.path}: a Redwood folder needs color/ (or image/) and depth/ folders")
         rgb = sorted(p for p in col.iterdir() if p.suffix.lower() in exts)
         dep = sorted(p for p in (self.path / "depth").iterdir() if p.suffix.lower() == ".png")
         if not rgb or len(rgb) != len(dep):
@@ -736,7 +752,7 @@ class RedwoodSequence(TumSequence):
 def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[float] = None, **kwargs) -> TumSequence:
     """Open an RGB-D sequence folder with the reader its content calls for: ``rgb.txt`` + ``depth.txt``
     (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
-    :class:`IclNuimSequence`; ``color/`` (or ``image/``, ``rgb/``) + ``depth/`` folders (Redwood) ->
+    :class:`IclNuimSequence`; ``color/`` (or ``image/``) + ``depth/`` folders (Redwood) ->
     :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's) and ``kwargs``
     (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else.
     """
@@ -745,8 +761,8 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[f
         raise DatasetError(f"{p}: sequence folder does not exist")
     if not p.is_dir():
         raise DatasetError(f"{p}: not a folder (expected an RGB-D sequence folder)")
-    if _is_sequence_dir(p):
-        cls = TumSequence
+    if _is_sequence_dir(p) or (p / "rgb.txt").is_file() or (p / "depth.txt").is_file():
+        cls = TumSequence   # with one of the two lists only, TumSequence names the missing one
     elif (p / "associations.txt").is_file():
         cls = IclNuimSequence
     elif (p / "depth").is_dir() and any((p / c).is_dir() for c in RedwoodSequence.COLOR_DIRS):

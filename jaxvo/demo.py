@@ -105,10 +105,10 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
         mt, mpaths = true_masks(seq_dir)
         masks_true = [load_mask(p) for p in mpaths]
         cover = np.array([m.mean() for m in masks_true])
-        # the dynamic frame shown in the overlay: most moving pixels (a pair's reference frame)
-        show = int(np.argmax(cover[:-1])) if len(cover) > 1 else 0
+        # inlier and defined masks of each method's estimates (the segmentation's dynamic pixels
+        # counted as outliers), by reference frame (the last, longest-baseline one)
+        seen = {}
         results = {}
-        shown = {}
         for method in methods:
             config = Config(method=method)
             counts = np.zeros(4, np.int64)
@@ -120,8 +120,7 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                     pred, val = pred | ~step.static_mask, val | ~step.static_mask
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
-                if step.reference == show:
-                    shown[method] = (~pred, val)
+                seen.setdefault(method, {})[step.reference] = (~pred, val)
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")
             res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)
@@ -169,6 +168,11 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                                   ylabel="translational RPE [mm/frame]",
                                   title=f"{seq_name}: translational error per frame"),
         out / "translational_error.png")
+    # the dynamic frame shown in the overlay: the reference frame (one that every method estimated
+    # against; with keyframes not every frame is one) with the most moving pixels
+    common = set.intersection(*(set(v) for v in seen.values())) if seen else set()
+    show = max(common, key=lambda i: (cover[i], -i)) if common else 0
+    shown = {m: v[show] for m, v in seen.items() if show in v}
     if shown:
         import matplotlib.pyplot as plt
         fr = seq.frame(show)

@@ -163,9 +163,11 @@ def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", m
     if masks_dir is not None:
         tm = true_masks(seq_dir) if seq_dir is not None else None
         if tm is None:
-            where = seq_dir if seq_dir is not None else gt_file
-            raise DatasetError(f"{where}: no true moving-pixel masks (masks.txt / masks/) to score --masks-dir "
-                               f"against (give the sequence folder as GROUNDTRUTH)")
+            if seq_dir is None:
+                raise DatasetError(f"{gt_file}: --masks-dir needs the sequence folder as GROUNDTRUTH (its masks/ "
+                                   f"hold the true moving pixels), not a ground-truth file")
+            raise DatasetError(f"{seq_dir}: no true moving-pixel masks (masks.txt / masks/) to score --masks-dir "
+                               f"against (jaxvo synth and jaxvo augment write them)")
         masks, n_masks = score_masks(masks_dir, tm[0], tm[1], max_dt)
     return {"rpe": r, "ate": a, "masks": masks, "mask_frames": n_masks, "gt": gt, "est": (es, eP),
             "gt_file": gt_file}

@@ -32,11 +32,15 @@ def read_run_settings(path) -> dict:
     """
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_bytes().decode("utf-8")
     except FileNotFoundError:
         raise DatasetError(f"{p}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{p}: cannot read config file ({e})") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{p}: is a folder, expected a JSON config file") from None
+    except UnicodeDecodeError as e:
+        raise DatasetError(f"{p}: config file is not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise DatasetError(f"{p}: cannot read config file ({e.strerror or e})") from None
     if text.lstrip().startswith("#"):
         found = {}
         for line in text.splitlines():
@@ -57,7 +61,7 @@ def read_run_settings(path) -> dict:
         raise DatasetError(f"{p}: not valid JSON ({e.msg} at line {e.lineno}) nor a jaxvo trajectory file") \
             from None
     if not isinstance(data, dict):
-        raise DatasetError(f"{p}: expected a JSON object of Config fields")
+        raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
     return {"config": data}
 
 
@@ -116,6 +120,7 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
     if over:
         seq.camera = dataclasses.replace(seq.camera, **over)
         seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
+        seq.camera.validate()
     return seq
 
 
@@ -172,13 +177,15 @@ class RunResult:
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
     """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
-    :class:`jaxvo.odometry.TrackConfig`; default ``TrackConfig()``), so results equal the library's,
-    writing the trajectory to ``out`` as it goes (first frame at identity) and optionally each
-    estimate's outlier mask into ``save_masks`` (PNG named by the *reference* frame's
-    timestamp: the mask lives on the reference image's pixels; with keyframes the last
-    estimate against a reference, the longest baseline, is the one kept).
-    ``on_pair(step)`` is called with each :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the run early
-    (``interrupted=True``) keeping everything written so far.
+    :class:`jaxvo.config.TrackConfig`; default the library's TrackConfig()) and the key
+    ``jax.random.key(seed)``, so results equal the library's. The trajectory goes to ``out`` as
+    it grows (first frame at identity), after the ``#`` header of :func:`run_header` (version,
+    method, seed, config, policy, reader settings). Optionally each estimate's outlier mask goes
+    into ``save_masks`` (PNG named by the *reference* frame's timestamp: the mask lives on the
+    reference image's pixels; with keyframes the last estimate against a reference, the longest
+    baseline, is the one kept). ``on_pair(step)`` is called with each
+    :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
+    run early (``interrupted=True``) keeping everything written so far.
     """
     import cv2
     import jax

@@ -68,12 +68,12 @@ def format_pose_line(stamp: float, T_world_cam) -> str:
 def read_tum_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
     """Read a TUM trajectory file -> (stamps (N,) float64, T_world_cam (N, 4, 4) float64).
 
-    Lines are sorted by time; duplicates of a timestamp keep the first line. Raises
-    DatasetError (a ValueError) with file, line number and problem: missing file, wrong
-    number of fields, non-numeric or non-finite value, zero quaternion, no pose at all.
+    Lines are sorted by time. Raises DatasetError (a ValueError) with file, line number and
+    problem: missing file, wrong number of fields, non-numeric or non-finite value, zero
+    quaternion, a timestamp given twice, no pose at all.
     (No Bonn conversion here: use :func:`jaxvo.datasets.read_groundtruth` for ground truth.)
     """
-    return read_pose_file(path, what="trajectory")
+    return read_pose_file(path, what="trajectory", duplicates="error")
 
 
 def write_tum_trajectory(path, stamps, poses, header: str = HEADER) -> None:

@@ -198,15 +198,20 @@ def test_interrupted_run_keeps_finished_frames(tmp_path, synth_seq):
     env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
     n_frames = len([ln for ln in (synth_seq / "rgb.txt").read_text().splitlines() if not ln.startswith("#")])
 
-    # Ctrl-C: clean exit, summary printed, file holds every finished frame
+    # Ctrl-C: exit code 130, summary printed, the .partial file holds every finished frame
     out_int = tmp_path / "int.txt"
+    part_int = tmp_path / "int.txt.partial"
     p = _start_run(synth_seq, out_int, env)
-    _wait_for_poses(p, out_int, 4)
+    _wait_for_poses(p, part_int, 4)
     p.send_signal(signal.SIGINT)
     stdout, stderr = p.communicate(timeout=120)
-    assert p.returncode == 0, stderr
     assert "Traceback" not in stderr
-    stamps, poses = read_tum_trajectory(out_int)
+    if p.returncode == 0:            # the run ended before the signal arrived
+        stamps, poses = read_tum_trajectory(out_int)
+    else:
+        assert p.returncode == 130, stderr
+        assert not out_int.exists()  # an incomplete trajectory never gets the final name
+        stamps, poses = read_tum_trajectory(part_int)
     if len(stamps) < n_frames:  # the signal arrived while tracking (not after the last frame)
         assert "interrupted" in stdout
     written = int(re.search(r"^frames\s+(\d+)", stdout, re.M).group(1))
@@ -215,12 +220,14 @@ def test_interrupted_run_keeps_finished_frames(tmp_path, synth_seq):
     assert np.all(np.diff(stamps) > 0)
 
     # SIGKILL: no chance to clean up; every complete line is still a valid pose
-    out_kill = tmp_path / "kill.txt"
-    p = _start_run(synth_seq, out_kill, env)
+    out_kill = tmp_path / "kill.txt.partial"
+    p = _start_run(synth_seq, tmp_path / "kill.txt", env)
     _wait_for_poses(p, out_kill, 6)
     seen = _pose_lines(out_kill)
     p.kill()
     p.communicate(timeout=60)
+    if not out_kill.exists():  # the run ended (and renamed its file) before the kill
+        out_kill = tmp_path / "kill.txt"
     text = out_kill.read_text()
     assert text.endswith("\n")  # no partial line
     s2, P2 = read_tum_trajectory(out_kill)
@@ -297,23 +304,22 @@ def _run_and_eval(tmp, seq_dir, method, *extra):
 def test_bonn_crowd_160_frames_end_to_end(tmp_path):
     """`jaxvo run` then `jaxvo eval` on the Bonn crowd excerpt (160 frames, three people walking).
 
-    Both methods under the same policy, keyframes up to 6 frames back (``--keyframe-gap 6``),
-    seed 0; RPE with a 1 s delta, ATE after alignment. The camera itself moves only 0.087 m/s:
-    standing still scores RPE 0.087 m/s, 7.2 deg/s, ATE 0.089 m.
+    jaxvo's defaults (ransac, keyframes with the persistent static/dynamic segmentation) against
+    the paper's frame-to-frame chaining (``--frame-to-frame``), seed 0; RPE with a 1 s delta, ATE
+    after alignment. The camera itself moves only 0.087 m/s: standing still scores RPE
+    0.087 m/s, 7.2 deg/s, ATE 0.089 m.
     """
     if not BONN_CROWD.is_dir():
         pytest.skip(f"Bonn data not found: {BONN_CROWD} (set JAXVO_DATA to the data root)")
-    ransac = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--keyframe-gap", 6)
-    classic = _run_and_eval(tmp_path, BONN_CROWD, "classic", "--keyframe-gap", 6)
-    classic_f2f = _run_and_eval(tmp_path, BONN_CROWD, "classic")
-    print("ransac", ransac, "classic", classic, "classic frame-to-frame", classic_f2f)
-    # measured (experiments/keyframes.py): ransac 0.107 m/s, 2.38 deg/s, ATE 0.093 m (seeds 1, 2:
-    # 0.117 / 0.120 m/s, ATE 0.101 / 0.088); classic with the same keyframes 0.228 m/s,
-    # 7.33 deg/s, ATE 0.168 m (102 of 159 frames fail and hold their pose); classic frame to
-    # frame (the paper's chaining) 0.724 m/s, 12.7 deg/s, ATE 0.660 m.
-    assert ransac[0] < 0.7 * classic[0] and ransac[2] < 0.75 * classic[2], (ransac, classic)
-    assert ransac[1] < 0.6 * classic[1] and ransac[1] < 4.5, (ransac, classic)
-    assert ransac[0] < 0.3 * classic_f2f[0] and ransac[2] < 0.3 * classic_f2f[2], (ransac, classic_f2f)
+    default = _run_and_eval(tmp_path, BONN_CROWD, "ransac")
+    f2f = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--frame-to-frame")
+    print("default", default, "frame to frame", f2f)
+    # measured (experiments/keyframes.py, seeds 0-2): defaults 0.057-0.092 m/s, 1.8-2.0 deg/s,
+    # ATE 0.047-0.053 m; ransac frame to frame 0.68-0.70 m/s, 11.2-11.5 deg/s, ATE 0.68-0.70 m
+    assert default[0] < 0.25 * f2f[0] and default[2] < 0.15 * f2f[2], (default, f2f)
+    assert default[1] < 0.3 * f2f[1] and default[1] < 3.5, (default, f2f)
+    # better than standing still where it can be: in rotation and ATE
+    assert default[1] < 0.5 * 7.2 and default[2] < 0.08, default
 
 
 def test_cli_matches_library_track(tmp_path, synth_seq):
@@ -333,13 +339,14 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
     np.testing.assert_allclose(stamps, seq.timestamps, atol=1e-6)
     np.testing.assert_allclose(poses, tr.poses, atol=2e-6)
     files = sorted(masks.glob("*.png"))
-    assert len(files) == 5 and files[0].stem == f"{seq.timestamps[0]:.6f}"
+    refs = sorted(set(tr.reference.tolist()))      # one mask per reference frame
+    assert [f.stem for f in files] == [f"{seq.timestamps[i]:.6f}" for i in refs]
     m = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
     assert m.shape == (120, 160) and m.dtype == np.uint8 and set(np.unique(m)) <= {0, 255}
     # eval scores the saved masks against the sequence's true moving-pixel masks
     r = _invoke(["eval", synth_seq, traj, "--delta-unit", "f", "--masks-dir", masks])
     assert r.exit_code == 0, r.output
-    assert "precision" in r.stdout and "recall" in r.stdout and "(5 frames)" in r.stdout
+    assert "precision" in r.stdout and "recall" in r.stdout and f"({len(refs)} frames)" in r.stdout
 
 
 # ----------------------------------------------------------------------------- demo

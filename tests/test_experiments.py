@@ -40,7 +40,7 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("aug-cache")
 
 
-@pytest.mark.parametrize("name", ["table1", "speed", "sweep"])
+@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag"])
 def test_help(name):
     r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
                        timeout=120)
@@ -148,3 +148,17 @@ def test_keyframes_small(tmp_path):
         assert c["ransac_ate_mean"] == pytest.approx(mean)
         assert c["ratio_ate"] == pytest.approx(mean / rows[("classic", chaining, None)]["ate"])
     assert "same policy" in text
+
+
+def test_figures_small(tmp_path):
+    """experiments/figures.py: the default odometry's overlay and map on a few real frames."""
+    _require(DYNAMIC)
+    import cv2
+    out = _script("figures").main([str(DYNAMIC), "--max-frames", "10", "--frames", "7,9", "--out-dir",
+                                   str(tmp_path), "--ply", str(tmp_path / "map.ply")])
+    seg = cv2.imread(str(out / "bonn_segmentation.png"))
+    assert seg is not None and seg.shape == (240, 640, 3)    # two 640x480 panels side by side, halved
+    assert cv2.imread(str(out / "bonn_map.png")) is not None
+    from jaxvo.mapping import read_ply
+    pts, cols = read_ply(tmp_path / "map.ply")
+    assert len(pts) > 1000 and cols.shape == (len(pts), 3)

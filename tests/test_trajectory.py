@@ -11,6 +11,7 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.datasets import DatasetError
+from jaxvo.datasets import read_pose_file
 from jaxvo.trajectory import (HEADER, TrajectoryWriter, chain, format_pose_line, read_tum_trajectory,
                               write_tum_trajectory)
 
@@ -138,8 +139,14 @@ def test_read_errors(tmp_path):
         read_tum_trajectory(p)
 
 
-def test_read_sorts_and_drops_duplicate_stamps(tmp_path):
+def test_read_sorts_and_refuses_duplicate_stamps(tmp_path):
     p = tmp_path / "t.txt"
-    p.write_text("2.0 2 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n1.0 9 0 0 0 0 0 1\n")
+    p.write_text("2.0 2 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n")
     t, P = read_tum_trajectory(p)
+    assert t.tolist() == [1.0, 2.0] and P[:, 0, 3].tolist() == [1.0, 2.0]
+    # an estimate giving one frame two poses is an error naming the line; ground truth keeps the first
+    p.write_text("2.0 2 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n1.0 9 0 0 0 0 0 1\n")
+    with pytest.raises(ValueError, match=r"t.txt:3: timestamp 1.0 repeats line 2"):
+        read_tum_trajectory(p)
+    t, P = read_pose_file(p, duplicates="first")
     assert t.tolist() == [1.0, 2.0] and P[:, 0, 3].tolist() == [1.0, 2.0]

@@ -7,7 +7,7 @@ the camera keeps its real ground truth:
 
 * The camera pose of each frame is the real ground truth ``T_world_cam``
   interpolated at the rgb timestamp (linear translation, slerp rotation;
-  clamped at the ends of the ground truth).
+  ground truth that does not cover every frame is an error).
 * Each occluder has a smooth trajectory in the real world frame: it stands
   upright (along the world's gravity axis, ``-z`` for TUM mocap worlds) at a
   point that follows a heavily smoothed (Gaussian, sigma 1.5 s) version of
@@ -37,72 +37,16 @@ from typing import Callable, Optional
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from jaxvo import geometry
-from jaxvo.camera import Camera, camera_for_sequence
+from jaxvo.camera import Camera
+from jaxvo.datasets import DatasetError, TumSequence
 from jaxvo.synthetic.render import render
 from jaxvo.synthetic.scene import Scene, make_person
 from jaxvo.synthetic.writer import depth_to_png, write_list
 
-__all__ = ["augment", "read_tum_list", "read_tum_groundtruth", "interpolate_pose", "associate_nearest",
-           "WorldWalk"]
+__all__ = ["augment", "WorldWalk"]
 
 _DEPTH_SCALE = 5000.0
-
-
-# --------------------------------------------------------------------------- small TUM reader
-
-def read_tum_list(path):
-    """``timestamp filename`` list (``#`` comments skipped) -> ((N,) float64 stamps, [N] filenames, [N] stamp strings)."""
-    stamps, names, raw = [], [], []
-    for line in Path(path).read_text().splitlines():
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.split()
-        raw.append(parts[0])
-        stamps.append(float(parts[0]))
-        names.append(parts[1])
-    return np.asarray(stamps, np.float64), names, raw
-
-
-def read_tum_groundtruth(path):
-    """``timestamp tx ty tz qx qy qz qw`` file -> ((N,) float64 stamps, (N, 4, 4) float64 T_world_cam)."""
-    rows = [list(map(float, l.split()[:8])) for l in Path(path).read_text().splitlines()
-            if l.strip() and not l.lstrip().startswith("#")]
-    a = np.asarray(rows, np.float64)
-    return a[:, 0], geometry.transform_from_quat_trans(a[:, 4:8], a[:, 1:4])
-
-
-def associate_nearest(a, b, max_dt: float = 0.02):
-    """For each stamp of ``a`` the index of the nearest stamp of ``b`` (-1 if farther than ``max_dt`` s)."""
-    b = np.asarray(b)
-    order = np.argsort(b)
-    bs = b[order]
-    i = np.clip(np.searchsorted(bs, a), 1, max(len(bs) - 1, 1))
-    left, right = bs[i - 1], bs[np.minimum(i, len(bs) - 1)]
-    pick = np.where(np.abs(a - left) <= np.abs(right - a), i - 1, i)
-    pick = np.minimum(pick, len(bs) - 1)
-    out = order[pick]
-    return np.where(np.abs(bs[pick] - a) <= max_dt, out, -1)
-
-
-def interpolate_pose(stamps, poses, t: float) -> np.ndarray:
-    """T_world_cam (4, 4) at time ``t`` from (N,) stamps and (N, 4, 4) poses (lerp + slerp; clamped at the ends)."""
-    if t <= stamps[0]:
-        return poses[0].copy()
-    if t >= stamps[-1]:
-        return poses[-1].copy()
-    i = int(np.searchsorted(stamps, t))
-    t0, t1 = stamps[i - 1], stamps[i]
-    a = (t - t0) / (t1 - t0)
-    rots = Rotation.from_matrix(poses[i - 1:i + 1, :3, :3])
-    R = Slerp([0.0, 1.0], rots)([a]).as_matrix()[0]
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = (1 - a) * poses[i - 1, :3, 3] + a * poses[i, :3, 3]
-    return T
 
 
 # --------------------------------------------------------------------------- occluder trajectories
@@ -196,35 +140,31 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
     Returns ``Path(out_dir)``. Output is deterministic for a given input and arguments.
     """
     src = Path(real_seq_dir)
-    for f in ("rgb.txt", "depth.txt", "groundtruth.txt"):
-        if not (src / f).is_file():
-            raise FileNotFoundError(f"{src} is not a TUM sequence folder: missing {f}")
     if persons < 1:
         raise ValueError(f"persons must be >= 1, got {persons}")
     if not 0 < coverage < 1:
         raise ValueError(f"coverage must be in (0, 1), got {coverage}")
-    rgb_t, rgb_n, rgb_raw = read_tum_list(src / "rgb.txt")
-    dep_t, dep_n, dep_raw = read_tum_list(src / "depth.txt")
-    gt_t, gt_T = read_tum_groundtruth(src / "groundtruth.txt")
-    order = np.argsort(gt_t)
-    gt_t, gt_T = gt_t[order], gt_T[order]
-    match = associate_nearest(rgb_t, dep_t, 0.02)
-    frames = [(i, int(j)) for i, j in enumerate(match) if j >= 0]
-    if max_frames is not None:
-        frames = frames[:int(max_frames)]
-    if not frames:
-        raise ValueError(f"no rgb/depth pairs within 0.02 s in {src}")
-
-    first = cv2.imread(str(src / rgb_n[frames[0][0]]), cv2.IMREAD_COLOR)
-    if first is None:
-        raise FileNotFoundError(f"cannot read {src / rgb_n[frames[0][0]]}")
+    # the same reader as every command: association, listed files, ground-truth coverage
+    seq = TumSequence(src, camera=camera, max_frames=max_frames)
+    if not seq.groundtruth_path.is_file():
+        raise DatasetError(f"{seq.groundtruth_path}: file not found (augment needs the real ground truth)")
+    gt_t, gt_T = seq.groundtruth
+    covered, frame_poses = seq.groundtruth_at_frames()
+    if not covered.all():
+        k = int(np.argmin(covered))
+        raise DatasetError(f"{seq.groundtruth_path}: no ground truth at frame {k} ({seq.timestamps[k]:.6f} s); "
+                           f"it covers {gt_t[0]:.6f} .. {gt_t[-1]:.6f}")
+    first, _ = seq.read_images(0)
     H, W = first.shape[:2]
-    cam = camera if camera is not None else camera_for_sequence(src.name)
-    cam = cam.with_size(W, H)
+    cam = seq.camera.with_size(W, H)
+    stamps = [f"{t:.6f}" for t in seq.timestamps]
+    dstamps = [f"{t:.6f}" for t in seq.depth_timestamps]
+    names = [p.relative_to(src).as_posix() for p in seq.rgb_paths]
+    dnames = [p.relative_to(src).as_posix() for p in seq.depth_paths]
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xA06, int(persons)]))
     down = _gravity_down(gt_T)
-    t0 = float(rgb_t[frames[0][0]])
+    t0 = float(seq.timestamps[0])
     # person sizes and initial distances from the coverage target
     kinds = ["cylinder" if k % 2 == 0 else "box" for k in range(persons)]
     widths = rng.uniform(0.45, 0.6, persons)
@@ -244,24 +184,14 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
         scene.add(make_person(rng, walks[k], kind=kinds[k], width=float(widths[k]), height=float(heights[k]),
                               name=f"person{k}"))
 
-    def load(i, j):
-        rgb = cv2.imread(str(src / rgb_n[i]), cv2.IMREAD_COLOR)
-        dep = cv2.imread(str(src / dep_n[j]), cv2.IMREAD_UNCHANGED)
-        if rgb is None or dep is None:
-            raise FileNotFoundError(f"cannot read {src / rgb_n[i]} or {src / dep_n[j]}")
-        if dep.dtype != np.uint16:
-            raise ValueError(f"{src / dep_n[j]}: depth must be 16-bit, got {dep.dtype}")
-        return rgb, dep
-
     # calibrate the distance on the first frame so the composited coverage is about `coverage`
-    i0, j0 = frames[0]
-    rgb0, dep0 = load(i0, j0)
-    T0 = interpolate_pose(gt_t, gt_T, float(rgb_t[i0]))
+    rgb0, dep0 = seq.read_images(0)
+    T0 = frame_poses[0]
     scale = 1.0
     for _ in range(4):
         for k, w in enumerate(walks):
             w.distance = float(np.clip(dist0[k] * jitter[k] * scale, 0.5, 4.0))
-        occ = render(scene, cam, T0, float(rgb_t[i0]))
+        occ = render(scene, cam, T0, t0)
         cov = _composite(rgb0, dep0, occ)[2].mean()
         if cov <= 0 or abs(cov - coverage) < 0.03:
             if cov <= 0:
@@ -274,23 +204,23 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
     for sub in ("rgb", "depth", "masks"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     rgb_entries, dep_entries, mask_entries, covs = [], [], [], []
-    for n, (i, j) in enumerate(frames):
-        rgb, dep = load(i, j)
-        t = float(rgb_t[i])
-        occ = render(scene, cam, interpolate_pose(gt_t, gt_T, t), t)
+    for n in range(len(seq)):
+        rgb, dep = seq.read_images(n)
+        t = float(seq.timestamps[n])
+        occ = render(scene, cam, frame_poses[n], t)
         out_rgb, out_dep, win = _composite(rgb, dep, occ)
-        (out / rgb_n[i]).parent.mkdir(parents=True, exist_ok=True)
-        (out / dep_n[j]).parent.mkdir(parents=True, exist_ok=True)
-        for path, img in ((out / rgb_n[i], out_rgb), (out / dep_n[j], out_dep),
-                          (out / "masks" / f"{rgb_raw[i]}.png", win.astype(np.uint8) * 255)):
+        (out / names[n]).parent.mkdir(parents=True, exist_ok=True)
+        (out / dnames[n]).parent.mkdir(parents=True, exist_ok=True)
+        for path, img in ((out / names[n], out_rgb), (out / dnames[n], out_dep),
+                          (out / "masks" / f"{stamps[n]}.png", win.astype(np.uint8) * 255)):
             if not cv2.imwrite(str(path), img):
-                raise OSError(f"could not write {path}")
-        rgb_entries.append((rgb_raw[i], rgb_n[i]))
-        dep_entries.append((dep_raw[j], dep_n[j]))
-        mask_entries.append((rgb_raw[i], f"masks/{rgb_raw[i]}.png"))
+                raise OSError(f"{path}: could not write image")
+        rgb_entries.append((stamps[n], names[n]))
+        dep_entries.append((dstamps[n], dnames[n]))
+        mask_entries.append((stamps[n], f"masks/{stamps[n]}.png"))
         covs.append(float(win.mean()))
         if progress is not None:
-            progress(n + 1, len(frames))
+            progress(n + 1, len(seq))
     desc = f"augmented from '{src.name}' by jaxvo.synthetic.augment ({persons} persons, seed {seed})"
     write_list(out / "rgb.txt", f"color images\n{desc}\ntimestamp filename", rgb_entries)
     write_list(out / "depth.txt", f"depth maps\n{desc}\ntimestamp filename", dep_entries)
@@ -298,7 +228,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
                "timestamp filename", mask_entries)
     shutil.copyfile(src / "groundtruth.txt", out / "groundtruth.txt")
     info = {"source": str(src.name), "persons": int(persons), "coverage_target": float(coverage),
-            "coverage_mean": float(np.mean(covs)), "seed": int(seed), "frames": len(frames),
+            "coverage_mean": float(np.mean(covs)), "seed": int(seed), "frames": len(seq),
             "camera": {"fx": float(cam.fx), "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
                        "width": int(cam.width), "height": int(cam.height)},
             "distances_m": [round(w.distance, 4) for w in walks]}

@@ -1,0 +1,88 @@
+"""Safe outputs: never write over an input, never leave a half-written file under the final name.
+
+* :func:`check_output` refuses an output path that equals an input file or folder or lies
+  inside an input folder (unless ``force``), and one whose parent is a file.
+* :func:`partial_path` is where a file or folder is written until it is complete;
+  :func:`finish` moves it to its final name (``os.replace``, atomic on one file system).
+  A run that fails half way leaves its work under the ``.partial`` name, so a previous
+  result under the final name is never clobbered by an incomplete one.
+
+Errors are :class:`jaxvo.datasets.DatasetError` with one line naming the path.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+from typing import Iterable
+
+from jaxvo.datasets import DatasetError
+
+__all__ = ["check_output", "check_output_folder", "partial_path", "finish"]
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def check_output(out, inputs: Iterable = (), force: bool = False, option: str = "") -> Path:
+    """Check that writing ``out`` cannot destroy an input; returns ``Path(out)``.
+
+    ``inputs`` are files or folders the command reads (None entries are skipped). Raises
+    DatasetError when ``out`` is one of them or lies inside one of the folders (unless
+    ``force``), when ``out`` is an existing folder, or when a parent of ``out`` is a file.
+    ``option`` (e.g. ``"--out"``) names the option in the message.
+    """
+    out = Path(out)
+    label = f"{option} {out}" if option else str(out)
+    target = out.resolve()
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise DatasetError(f"{label}: cannot write there, {parent} is a file, not a folder")
+            break
+    if not force:
+        for inp in inputs:
+            if inp is None:
+                continue
+            src = Path(inp).resolve()
+            if target == src or (src.is_dir() and _inside(target, src)):
+                what = "is" if target == src else "lies inside"
+                raise DatasetError(f"{label}: {what} the input {inp}; writing there would overwrite or mix with "
+                                   f"it (choose another path, or pass --force)")
+    return out
+
+
+def check_output_folder(out, inputs: Iterable = (), force: bool = False) -> Path:
+    """:func:`check_output` for an output folder, which also must not exist with files in it
+    (unless ``force``: then it is replaced once the new one is complete)."""
+    out = check_output(out, inputs, force)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise DatasetError(f"{out}: folder exists and is not empty (choose another folder, or pass --force "
+                           f"to replace it)")
+    return out
+
+
+def partial_path(out, keep_suffix: bool = False, fresh: bool = False) -> Path:
+    """``out`` + ``.partial`` (``name.partial.ext`` with ``keep_suffix``, for writers that pick the
+    format by extension). ``fresh`` removes an old partial folder, so an attempt starts clean."""
+    out = Path(out)
+    p = out.with_name(f"{out.stem}.partial{out.suffix}") if keep_suffix and out.suffix else \
+        out.with_name(out.name + ".partial")
+    if fresh and p.is_dir():
+        shutil.rmtree(p)
+    return p
+
+
+def finish(partial, out) -> Path:
+    """Move the complete ``partial`` to ``out`` (a folder ``out`` is replaced); returns ``Path(out)``."""
+    partial, out = Path(partial), Path(out)
+    if out.is_dir() and partial.is_dir():
+        shutil.rmtree(out)
+    try:
+        os.replace(partial, out)
+    except OSError as e:
+        raise DatasetError(f"{out}: cannot move the finished {partial} there ({e.strerror or e})") from None
+    return out
