@@ -72,6 +72,12 @@ class Config:
     consensus_weights: *static*, the RANSAC refinement on the consensus set: "binary"
       (least squares on the inliers, the paper) or "huber" (Huber IRLS on the inliers,
       which also discounts the moving pixels that happen to pass the thresholds).
+    sample_gate: metres; RANSAC draws no sample centre whose depth residual at the level's
+      starting pose exceeds this (0: off, the paper). A person who stepped in front of the
+      static background since the reference covers pixels the segmentation of the
+      reference cannot know about; at the previous frame's pose their depth is off by far
+      more than any static pixel's, so samples there are wasted draws. If fewer than 10 % of
+      the trusted pixels pass, the gate is not applied.
     score_selection: *static*, which pixels score a hypothesis when there are more than
       max_score_pixels: "grid" (a regular subgrid) or "gradient" (the strongest-gradient
       pixel of each tile, so textureless areas that agree with any pose do not dilute it).
@@ -108,15 +114,16 @@ class Config:
     prior_candidate: str = "refined"
     min_depth_agreement: Any = 0.35
     min_photometric_agreement: Any = 0.65
+    sample_gate: Any = 0.2
 
     @classmethod
     def paper(cls, method: str = "ransac", **changes) -> "Config":
         """The seed paper's algorithm as published: hypotheses fitted on the photometric
         residual only, ranked by inlier count, scored on every pixel of every level, and
         every pixel used in the refinement, plain least squares on the consensus set.
-        The defaults differ from it in these six places (measured to be more accurate or faster; see the README)."""
+        The defaults differ from it in these seven places (measured to be more accurate or faster; see the README)."""
         return cls(method=method, hypothesis_terms="photometric", scoring="count", consensus_weights="binary",
-                   prior_candidate="raw",
+                   prior_candidate="raw", sample_gate=0.0,
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
     @classmethod
@@ -180,6 +187,7 @@ _RULES = {
     "prior_candidate": choice("raw", "refined"),
     "min_depth_agreement": real(0, 1),
     "min_photometric_agreement": real(0, 1),
+    "sample_gate": real(0),
 }
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
@@ -233,6 +241,14 @@ class TrackConfig(NamedTuple):
       reference pixels falls under this (0 = never).
     switch_baseline, switch_deg: move the reference early once the current frame is this
       far (metres, degrees) from it: overlap shrinks with the baseline.
+    fuse: when the new reference was estimated against an earlier reference than the
+      current one (with ``lag >= max_gap / 2`` every other reference is), estimate it
+      against the current reference too and chain later frames from the average of the two
+      poses. Without it the references form two interleaved chains that drift apart (their
+      difference shows as a zig-zag of a few cm on Bonn crowd); costs one extra estimate per
+      reference move.
+    smooth: the pose of a new reference comes from a smooth fit (twists quadratic in time)
+      to all the estimates against its own reference, not from its estimate alone.
     history: how many earlier frames (at offsets 2, 4, 8, ...) vote on a new reference's
       segmentation, beside the frames between it and the current frame.
     """
@@ -246,6 +262,8 @@ class TrackConfig(NamedTuple):
     switch_baseline: float = 0.15
     switch_deg: float = 8.0
     history: int = 4
+    fuse: bool = True
+    smooth: bool = True
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
@@ -284,6 +302,8 @@ _TRACK_RULES = {
     "switch_baseline": real(0, lo_open=True),
     "switch_deg": real(0, 180, lo_open=True),
     "history": integer(0, 6),
+    "fuse": flag(),
+    "smooth": flag(),
 }
 
 

@@ -118,7 +118,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             if level >= config.ransac_finest:  # finer levels: refine the carried-up consensus only
                 if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
                     T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
-                rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
+                rs = ransac_level(T, _gated(ref_l, cur_l, cam, T, config.sample_gate), cur_l, cam, score_pts,
+                                  jax.random.fold_in(key, level),
                                   p=config.p, w=config.w, thresh_lum=config.thresh_lum,
                                   thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
                                   n=config.n_points, radius=config.patch_radius,
@@ -162,6 +163,18 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
 
 
 _estimate_jit = jax.jit(_estimate)
+
+
+def _gated(ref_l, cur_l, cam, T, gate):
+    """``ref_l`` with the weight of pixels whose depth residual at T exceeds ``gate`` set to 0
+    (RANSAC draws its samples among weight >= 0.5); unchanged if gate <= 0 or if fewer than
+    10 % of the trusted pixels would remain."""
+    res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
+    far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
+    trusted = (ref_l.depth > 0) & (ref_l.weight >= 0.5)
+    kept = jnp.sum(trusted & ~far)
+    apply = (gate > 0) & (kept >= 0.1 * jnp.sum(trusted))
+    return ref_l._replace(weight=jnp.where(apply & far, 0.0, ref_l.weight))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):
@@ -446,6 +459,8 @@ class Odometry:
         self._frames: dict = {}         # index -> Frame that may still serve as reference
         self._depths: dict = {}         # index -> map-level depth, for the segmentation's votes
         self._ref = 0
+        self._anchor: dict = {}         # reference index -> the pose later frames chain from
+        self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
         self._L = None                  # dynamic log-odds of the reference, map level
 
     def __len__(self) -> int:
@@ -468,9 +483,34 @@ class Odometry:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
             return TrackStep(0, -1, None, self._first, True, None)
         policy, ref, poses = self.policy, self._ref, self.poses
-        T_ref_prev = geometry.inverse(poses[ref]) @ poses[j - 1]
+        T_world_ref = self._anchor.get(ref, poses[ref])
+        T_ref_prev = geometry.inverse(T_world_ref) @ poses[j - 1]
         weights = _trust(self._L, tuple(frame.depth.shape)) if policy.segment else None
-        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, jax.random.fold_in(self.key, j - 1),
+        est, T, ratio, ratio_static, valid = self._estimate(ref, frame, jax.random.fold_in(self.key, j - 1),
+                                                            T_ref_prev, weights)
+        pose = poses[j - 1].copy() if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
+        poses.append(pose)
+        self.valid.append(valid)
+        self.inlier_ratio.append(ratio)
+        self.references.append(ref)
+        if valid:
+            self._rel[j] = T
+        static_mask = None
+        if policy.segment:
+            static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
+            if valid:  # the current frame's view of the reference, at the estimated pose
+                self._L = _update_map(self._L, self._depths[ref], self._depths[j], jnp.asarray(T, jnp.float32),
+                                      self._map_cam, self.params)
+        result = TrackStep(j, ref, est, pose, valid, static_mask)
+        self._maybe_switch(j, T, ratio_static)
+        return result
+
+    def _estimate(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
+        """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
+        (float64 T_ref_guess). Returns (estimate, T_cur_ref float64, inlier ratio, inlier ratio
+        over trusted pixels, valid), valid also requiring a plausible step from the guess."""
+        policy = self.policy
+        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
         if policy.segment:
             ratio_static = _static_inlier_ratio(est.inlier_mask, est.valid_mask, weights)
@@ -481,23 +521,47 @@ class Odometry:
         T = _rigid(T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         if valid:
-            step = T @ T_ref_prev                          # T_cur_prev
+            step = T @ T_ref_prev                          # T_cur_guess
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
                      and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg))
-        pose = poses[j - 1].copy() if not valid and policy.hold_invalid else poses[ref] @ geometry.inverse(T)
-        poses.append(pose)
-        self.valid.append(valid)
-        self.inlier_ratio.append(float(ratio))
-        self.references.append(ref)
-        static_mask = None
-        if policy.segment:
-            static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
-            if valid:  # the current frame's view of the reference, at the estimated pose
-                self._L = _update_map(self._L, self._depths[ref], self._depths[j], jnp.asarray(T, jnp.float32),
-                                      self._map_cam, self.params)
-        result = TrackStep(j, ref, est, pose, valid, static_mask)
-        self._maybe_switch(j, T, float(ratio_static))
-        return result
+        return est, T, float(ratio), float(ratio_static), valid
+
+    def _smoothed(self, new: int) -> np.ndarray:
+        """Pose of ``new`` from a smooth fit to all estimates against its reference.
+
+        The frames estimated against the same reference have independent errors of several
+        mm while a hand-held camera moves smoothly over a few frames, so a least-squares fit of
+        the twists log(T_ref_f) with a t + b t^2 (t: frames after the reference, through zero at
+        the reference itself) is a better pose for a new reference than its own estimate."""
+        pose = self.poses[new]
+        parent = self.references[new - 1]
+        if not self.policy.smooth or new not in self._rel:
+            return pose
+        fs = [f for f in self._rel if f > parent and self.references[f - 1] == parent]
+        if len(fs) < 3:
+            return pose
+        T_parent_new = geometry.fit_motion(np.array(fs) - parent, geometry.inverse(np.stack([self._rel[f] for f in fs])),
+                                           new - parent)
+        return self._anchor.get(parent, self.poses[parent]) @ T_parent_new
+
+    def _fused_anchor(self, new: int, j: int) -> np.ndarray:
+        """The pose later frames chain from when ``new`` becomes the reference.
+
+        ``new`` was estimated against ``self.references[new - 1]``; if that is not the
+        current reference (the references would form interleaved chains), estimate it
+        against the current reference as well and average the two poses (midpoint on SE(3))."""
+        old, pose = self._ref, self._smoothed(new)
+        parent = self.references[new - 1]
+        if not self.policy.fuse or parent == old or new <= old:
+            return pose
+        T_world_old = self._anchor.get(old, self.poses[old])
+        weights = _trust(self._L, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
+        key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
+        _, T, _, _, valid = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose, weights)
+        if not valid:
+            return pose
+        other = T_world_old @ geometry.inverse(T)
+        return geometry.interpolate(pose, other, 0.5)
 
     def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float) -> None:
         policy, ref = self.policy, self._ref
@@ -516,13 +580,19 @@ class Odometry:
             del self._frames[old]
         for old in [i for i in self._depths if i < keep_depth]:
             del self._depths[old]
+        for d in (self._anchor, self._rel):   # estimates against the last references only
+            for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap]:
+                del d[old]
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
+        P = dict(enumerate(self.poses))   # the poses the map's votes use: anchors where set
+        P.update(self._anchor)
+        P[new] = self._fused_anchor(new, j)
+        self._anchor[new] = P[new]
         self._ref = new
         if not self.policy.segment:
             return
-        P = self.poses
         # voters: earlier frames at offsets 2, 4, 8, ... and every frame after the new
         # reference up to the current one (all with successful estimates)
         earlier = [new - (2 << k) for k in range(self.policy.history)]
