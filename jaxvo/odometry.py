@@ -56,6 +56,10 @@ class MotionEstimate(NamedTuple):
     information: (6, 6) J^T W J / sigma^2 at the finest level (inverse covariance of a
       left perturbation of T_cur_ref, twist order (w, v)).
     residual_rms: weighted RMS photometric residual at the finest level (0-255 units).
+    occluded_mask: (h, w) bool at the finest level processed: valid pixels whose current
+      depth is more than thresh_depth in front of the warped reference point: something
+      came between, so the reference pixel is hidden, not moving (see
+      :func:`jaxvo.mapping.moving_mask`). None where an estimate was made without it.
     """
     T_cur_ref: jnp.ndarray
     xi: jnp.ndarray
@@ -67,6 +71,7 @@ class MotionEstimate(NamedTuple):
     valid: jnp.ndarray
     information: jnp.ndarray
     residual_rms: jnp.ndarray
+    occluded_mask: Optional[jnp.ndarray] = None
 
 
 _TRACES = {"count": 0}
@@ -159,7 +164,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     info = sol.hessian / jnp.maximum(var, 1e-6)
     valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
-                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
+                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var),
+                          (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl))
 
 
 _estimate_jit = jax.jit(_estimate)
@@ -401,10 +407,13 @@ def _trust(L, shape):
 
 
 @jax.jit
-def _static_inlier_ratio(inlier_mask, valid_mask, weights):
-    """Inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5)."""
+def _trust_ratios(inlier_mask, valid_mask, weights):
+    """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
+    fraction of the valid reference pixels it does not trust)."""
     trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
-    return jnp.sum(inlier_mask & trusted) / jnp.maximum(jnp.sum(valid_mask & trusted), 1)
+    n_valid = jnp.maximum(jnp.sum(valid_mask), 1)
+    return (jnp.sum(inlier_mask & trusted) / jnp.maximum(jnp.sum(valid_mask & trusted), 1),
+            jnp.sum(valid_mask & ~trusted) / n_valid)
 
 
 @jax.jit
@@ -418,6 +427,9 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
     return segmentation.coherent_regions(L, new_md, camera, params)
 
+
+# frames over which a failed frame's coasting velocity is averaged
+_VELOCITY_FRAMES = 10
 
 # views that vote on a new reference's segmentation: a fixed number so that the map
 # update compiles once (missing views are padding with valid = False)
@@ -462,6 +474,7 @@ class Odometry:
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
         self._L = None                  # dynamic log-odds of the reference, map level
+        self._dynamic = 1.0             # fraction of the reference's valid pixels the map does not trust
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -488,7 +501,7 @@ class Odometry:
         weights = _trust(self._L, tuple(frame.depth.shape)) if policy.segment else None
         est, T, ratio, ratio_static, valid = self._estimate(ref, frame, jax.random.fold_in(self.key, j - 1),
                                                             T_ref_prev, weights)
-        pose = poses[j - 1].copy() if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
+        pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
         self.inlier_ratio.append(ratio)
@@ -505,6 +518,20 @@ class Odometry:
         self._maybe_switch(j, T, ratio_static)
         return result
 
+    def _held(self, j: int) -> np.ndarray:
+        """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity
+        of the last :data:`_VELOCITY_FRAMES` frames while fewer than ``policy.coast`` frames in a
+        row have failed (a mean over 1/3 s: single estimates are off by several mm)."""
+        P = self.poses
+        failed = 0
+        while failed < len(self.valid) and not self.valid[-1 - failed]:
+            failed += 1
+        n = min(_VELOCITY_FRAMES, j - 1)
+        if failed >= self.policy.coast or n < 1:
+            return P[j - 1].copy()
+        xi = geometry.log(geometry.inverse(P[j - 1 - n]) @ P[j - 1]) / n
+        return P[j - 1] @ geometry.exp(xi)
+
     def _estimate(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
         (float64 T_ref_guess). Returns (estimate, T_cur_ref float64, inlier ratio, inlier ratio
@@ -513,10 +540,10 @@ class Odometry:
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
         if policy.segment:
-            ratio_static = _static_inlier_ratio(est.inlier_mask, est.valid_mask, weights)
-            T, ratio, ok, ratio_static = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid, ratio_static))
+            T, ratio, ok, (ratio_static, self._dynamic) = jax.device_get(   # one transfer
+                (est.T_cur_ref, est.inlier_ratio, est.valid, _trust_ratios(est.inlier_mask, est.valid_mask, weights)))
         else:
-            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))  # one transfer
+            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
             ratio_static = ratio
         T = _rigid(T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
@@ -567,7 +594,10 @@ class Odometry:
         policy, ref = self.policy, self._ref
         far = (np.linalg.norm(T_cur_ref[:3, 3]) > policy.switch_baseline
                or geometry.rotation_angle(T_cur_ref[:3, :3]) > np.radians(policy.switch_deg))
-        if j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
+        calm = policy.segment and self.valid[-1] and float(self._dynamic) < policy.calm_fraction
+        if calm:      # nothing moves: frame to frame, the shortest baseline
+            self._set_reference(j, j)
+        elif j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
             # the latest frame at least `lag` back whose own estimate succeeded: a failed
             # (held) frame has no trustworthy pose and must not become a reference
             good = [i for i in range(ref + 1, j - policy.lag + 1) if self.valid[i - 1]]
