@@ -80,6 +80,9 @@ def enable(path: Optional[os.PathLike]) -> Optional[Path]:
         return None
     import jax
 
+    from jaxvo import aot
+
+    aot.enable(path / "exported")  # the traced estimator too, so that a second process skips tracing
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # -1: no minimum and no filesystem-dependent override by JAX
