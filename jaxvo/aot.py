@@ -11,15 +11,15 @@ program (one trace, one XLA compilation, as without this module).
 
 A file is named by a hash of everything that determines the program: the function's name,
 the jax and jaxlib versions, the backend (platform, its version, device kind), JAX's
-configuration values and ``XLA_FLAGS``, the source of every module of the jaxvo package,
+configuration values (but those of logging, caches and dumps) and ``XLA_FLAGS``, the source of every module of the jaxvo package,
 and the arguments' pytree structure (which holds the static fields of ``Config`` and the
 image size of ``Camera``) and abstract values (shape, dtype, weak type). A file whose
 checksum, format or abstract signature does not match is ignored and rewritten; any error
 while exporting, reading or running an exported program falls back to the ordinary jit
 path, so the worst a bad file costs is the time of tracing. Files are written under a
 temporary name and renamed (``os.replace``), so processes sharing the folder read either
-no file or a complete one; two processes that export the same program write identical
-bytes. Deleting the folder is always safe. Loading a file runs its program, so the folder
+no file or a complete one; two processes that export the same program write equivalent
+files (they differ only in the source locations kept for error messages). Deleting the folder is always safe. Loading a file runs its program, so the folder
 must be as trusted as JAX's own cache folder (the user's cache directory).
 
 ``jax.export`` serialization needs the ``flatbuffers`` package; without it every call takes
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import uuid
 from pathlib import Path
 from typing import Callable, Dict, Optional, Tuple
@@ -44,6 +45,9 @@ _FOLDER: Dict[str, Optional[Path]] = {"path": None}
 _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
 _STATS = {"loaded": 0, "exported": 0, "fallbacks": 0}
 _SOURCE: Dict[str, str] = {}
+# JAX settings that never change a traced program (logging, caches, dumps), left out of the
+# file name so that e.g. JAX_LOG_COMPILES=1 still finds the program
+_UNRELATED = re.compile(r"log|cache|explain|dump|traceback|pprint|transfer_guard|profil|timeout|verbose|report")
 
 
 def enable(path: Optional[os.PathLike]) -> Optional[Path]:
@@ -89,7 +93,7 @@ def _environment() -> str:
 
     dev = jax.devices()[0]
     settings = sorted((k, repr(v)) for k, v in jax.config.values.items()
-                      if v is None or isinstance(v, (bool, int, float, str)))
+                      if (v is None or isinstance(v, (bool, int, float, str))) and not _UNRELATED.search(k))
     return repr((jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, dev.client.platform_version,
                  os.environ.get("XLA_FLAGS", ""), settings, _source_hash()))
 
