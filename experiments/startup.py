@@ -18,7 +18,8 @@ wall time of the whole process, interpreter start and imports included, for one 
 Then, unless ``--no-stages``, where the first compilation goes: the estimator alone
 (``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
 XLA-compiled in this process with no cache, each stage timed, and the size of the lowered
-program (lines of StableHLO text).
+program (lines of StableHLO text); and the default estimator's parts (prior fit, RANSAC
+hypotheses and scoring, refinement) at the finest and the coarsest level, each compiled alone.
 """
 from __future__ import annotations
 
@@ -107,12 +108,74 @@ def stage_rows(seq: Path, methods: List[str]) -> List[dict]:
         lowered = traced.lower()
         t2 = time.perf_counter()
         lines = lowered.as_text().count("\n")
-        t3 = time.perf_counter()
+        t3, c3 = time.perf_counter(), time.process_time()
         lowered.compile()
-        t4 = time.perf_counter()
-        rows.append({"method": method, "trace_s": t1 - t0, "lower_s": t2 - t1, "compile_s": t4 - t3, "lines": lines})
-        print(f"{method:8s} trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s  "
-              f"{lines} lines", flush=True)
+        t4, c4 = time.perf_counter(), time.process_time()
+        rows.append({"method": method, "part": "whole estimator", "trace_s": t1 - t0, "lower_s": t2 - t1,
+                     "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines})
+        print(f"{method:8s} trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s "
+              f"(cpu {c4 - c3:.2f} s)  {lines} lines", flush=True)
+    return rows
+
+
+def part_rows(seq: Path) -> List[dict]:
+    """The default estimator's parts at the finest and the coarsest level, each compiled alone (the
+    level's pyramid and points included), to show which code the XLA compilation spends its time on."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxvo.config import Config
+    from jaxvo.pyramid import build_pyramid
+    from jaxvo.ransac import ransac_level
+    from jaxvo.residuals import reference_points, select_points
+    from jaxvo.solvers import irls, solve_pose_small
+
+    s = common.open_sequence(seq)
+    c = Config()
+    rows = []
+    for level in (0, 3):
+        cam = s.camera.at_level(level)
+        h, w = s.camera.height >> level, s.camera.width >> level
+        img = jax.ShapeDtypeStruct((h, w), jnp.float32)
+        T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
+
+        def prepared(i, d, i2, d2):
+            ref, cur = build_pyramid(i, d, 1, c.max_depth)[0], build_pyramid(i2, d2, 1, c.max_depth)[0]
+            return ref, cur, select_points(ref, cam, c.blocks[level])
+
+        def prior(i, d, i2, d2, T):
+            ref, cur, pts = prepared(i, d, i2, d2)
+            return solve_pose_small(T, pts, cur, cam, pts.weight, c.max_iterations).T
+
+        def hypotheses(i, d, i2, d2, T):
+            ref, cur, _ = prepared(i, d, i2, d2)
+            stride = max(1, int(np.ceil(np.sqrt(h * w / c.max_score_pixels))))
+            return ransac_level(T, ref, cur, cam, reference_points(ref, cam, stride), jax.random.key(0), p=c.p, w=c.w,
+                                thresh_lum=c.thresh_lum, thresh_depth=c.thresh_depth,
+                                early_exit_ratio=c.early_exit_ratio, n=c.n_points, radius=c.patch_radius,
+                                max_hypotheses=c.max_hypotheses, batch_size=c.batch_size,
+                                hypothesis_iterations=c.hypothesis_iterations, depth_weight=c.depth_weight,
+                                scoring=c.scoring).T
+
+        def refinement(i, d, i2, d2, T):
+            ref, cur, pts = prepared(i, d, i2, d2)
+            return irls(T, pts, cur, cam, pts.weight, c.huber_k, c.irls_rounds, c.irls_iterations).T
+
+        def pyramid_and_points(i, d, i2, d2, T):
+            return prepared(i, d, i2, d2)[2].points.sum() + T
+
+        for name, fn in (("pyramid level + points", pyramid_and_points), ("prior fit", prior),
+                         ("RANSAC hypotheses + scoring", hypotheses), ("refinement (Huber IRLS, jaxopt)", refinement)):
+            t0 = time.perf_counter()
+            lowered = jax.jit(fn).lower(img, img, img, img, T)
+            t1, c1 = time.perf_counter(), time.process_time()
+            lowered.compile()
+            t2, c2 = time.perf_counter(), time.process_time()
+            rows.append({"method": "default", "part": f"level {level} ({w}x{h}): {name}", "trace_s": float("nan"),
+                         "lower_s": t1 - t0, "compile_s": t2 - t1, "compile_cpu_s": c2 - c1,
+                         "lines": lowered.as_text().count("\n")})
+            print(f"level {level} {name:32s} XLA compile {t2 - t1:.2f} s (cpu {c2 - c1:.2f} s)", flush=True)
     return rows
 
 
@@ -136,7 +199,7 @@ def main(argv: Optional[List[str]] = None) -> None:
             raise SystemExit(f"error: --methods: unknown {', '.join(bad)} (choose from {', '.join(METHOD_ARGS)})")
     try:
         rows = startup_rows(seq, methods)
-        stages = [] if args.no_stages else stage_rows(seq, methods)
+        stages = [] if args.no_stages else stage_rows(seq, methods) + ([] if args.quick else part_rows(seq))
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -158,11 +221,15 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: 
     if stages:
         lines += ["", "## Where the first compilation goes", "",
                   "The estimator alone (`jaxvo.odometry._estimate_jit`) at the sequence's image size, in one "
-                  "process with no cache: `jit(...).trace`, `.lower`, `.compile` (XLA) timed separately; lines: "
-                  "the lowered StableHLO text.", "",
-                  "| method | trace s | lower s | XLA compile s | lines |", "| --- | --- | --- | --- | --- |"]
-        lines += [f"| {r['method']} | {r['trace_s']:.2f} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | {r['lines']} |"
-                  for r in stages]
+                  "process with no cache: `jit(...).trace`, `.lower` (for the parts: both), `.compile` (XLA) "
+                  "timed separately; `cpu`: CPU seconds of the whole process during the XLA compilation (less "
+                  "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "
+                  "parts: pieces of the default estimator at one pyramid level, each compiled alone with that "
+                  "level's pyramid and reference points (the estimator compiles each of them once per level).",
+                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [f"| {r['method']} | {r['part']} | {r['trace_s']:.2f} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
+                  f"{r['compile_cpu_s']:.1f} | {r['lines']} |" for r in stages]
     lines += ["", f"Total wall time {total_s:.0f} s."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
