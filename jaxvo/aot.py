@@ -102,6 +102,12 @@ def _avals(leaves) -> tuple:
     return tuple(str(jax.typeof(x)) for x in leaves)
 
 
+def _signature(leaves) -> tuple:
+    """What fixes the abstract values of ``leaves``, cheaply (every call looks it up)."""
+    return tuple((type(x), getattr(x, "shape", None), getattr(x, "dtype", None), getattr(x, "weak_type", None))
+                 for x in leaves)
+
+
 def program_key(name: str, args) -> str:
     """The hex name of ``name``'s exported program for these arguments (see the module docstring)."""
     leaves, tree = jax.tree.flatten(args)
@@ -177,7 +183,7 @@ def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple) -> tuple:
     leaves, tree = jax.tree.flatten(args)
     if _FOLDER["path"] is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
         return tuple(jax.tree.leaves(fn_jit(*args)))
-    memo = (name, tree, _avals(leaves))
+    memo = (name, tree, _signature(leaves))
     if memo not in _PROGRAMS:
         try:
             _PROGRAMS[memo] = _program(name, fn, leaves, tree)
