@@ -41,7 +41,7 @@ __all__ = ["enable", "folder", "call", "program_key", "stats"]
 
 _MAGIC = b"jaxvo-exported-1\n"
 _FOLDER: Dict[str, Optional[Path]] = {"path": None}
-# per (name, tree, avals) in this process: the jitted exported program, or None = use jit
+# per (name, tree, argument signature) in this process: the jitted exported program, or None = use jit
 _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
 _STATS = {"loaded": 0, "exported": 0, "fallbacks": 0}
 _SOURCE: Dict[str, str] = {}
@@ -148,7 +148,7 @@ def _write(path: Path, payload: bytes) -> None:
         raise
 
 
-def _program(name: str, fn: Callable, leaves, tree) -> Optional[Callable]:
+def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callable:
     """The exported program of ``fn`` for these arguments (read, or traced and written), jitted."""
     from jax import export
 
@@ -170,15 +170,16 @@ def _program(name: str, fn: Callable, leaves, tree) -> Optional[Callable]:
             _write(path, bytes(exp.serialize()))
         except OSError:
             pass  # a read-only or full folder: this process still runs the program
-    return jax.jit(exp.call)
+    return jax.jit(exp.call, compiler_options=compiler_options)
 
 
-def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple) -> tuple:
+def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_options: Optional[dict] = None) -> tuple:
     """``fn(*args)``'s result leaves (a flat tuple), through the exported program kept in the
     folder (see the module docstring), or ``fn_jit(*args)``'s leaves where that is off or fails.
 
     fn: the Python function (traced at most once per process and program); fn_jit: its
-    ``jax.jit``. ``name`` names the files (letters, digits, ``_``).
+    ``jax.jit``; compiler_options: the XLA options ``fn_jit`` was made with (the exported
+    program is compiled with the same ones). ``name`` names the files (letters, digits, ``_``).
     """
     leaves, tree = jax.tree.flatten(args)
     if _FOLDER["path"] is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
@@ -186,7 +187,7 @@ def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple) -> tuple:
     memo = (name, tree, _signature(leaves))
     if memo not in _PROGRAMS:
         try:
-            _PROGRAMS[memo] = _program(name, fn, leaves, tree)
+            _PROGRAMS[memo] = _program(name, fn, leaves, tree, compiler_options)
         except Exception:  # e.g. flatbuffers missing, or a primitive jax.export refuses
             _PROGRAMS[memo] = None
     prog = _PROGRAMS[memo]
