@@ -228,8 +228,10 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: 
                   "level's pyramid and reference points (the estimator compiles each of them once per level).",
                   "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines |",
                   "| --- | --- | --- | --- | --- | --- | --- |"]
-        lines += [f"| {r['method']} | {r['part']} | {r['trace_s']:.2f} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
-                  f"{r['compile_cpu_s']:.1f} | {r['lines']} |" for r in stages]
+        for r in stages:
+            trace = "n/a" if r["trace_s"] != r["trace_s"] else f"{r['trace_s']:.2f}"  # NaN: traced with lower
+            lines.append(f"| {r['method']} | {r['part']} | {trace} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
+                         f"{r['compile_cpu_s']:.1f} | {r['lines']} |")
     lines += ["", f"Total wall time {total_s:.0f} s."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
