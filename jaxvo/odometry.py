@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo import geometry, segmentation
+from jaxvo import aot, geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
@@ -333,9 +333,12 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
     T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
     if T0.shape != (4, 4):
         raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
-    return _estimate_jit(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
-                         jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
-                         camera, config, key, T0, _reference_weights(ref, weights))
+    args = (jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
+            jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
+            camera, config, key, T0, _reference_weights(ref, weights))
+    # through the program exported into the cache folder when the CLI (jaxvo.cache.enable)
+    # switched that on: a second process then skips tracing; else plain jit
+    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_jit, args))
 
 
 def _reference_weights(ref: Frame, weights=None):
