@@ -232,7 +232,8 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
                  segment: Optional[bool] = None):
     """:class:`jaxvo.odometry.TrackConfig` from the CLI's options on top of ``base`` (default
     ``TrackConfig()``, jaxvo's segmented keyframes): ``--frame-to-frame`` (the paper's chaining),
-    ``--keyframe-gap`` / ``--keyframe-lag`` (lag defaults to gap // 2; None keeps base's),
+    ``--keyframe-gap`` / ``--keyframe-lag`` (lag defaults to gap // 2; None keeps base's; a gap
+    turns off the calm frame-to-frame mode),
     ``--segment/--no-segment``. A bad combination raises ValueError naming the options."""
     from jaxvo.config import TrackConfig
 
@@ -244,7 +245,8 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
     elif int(gap) == 1:
         policy = TrackConfig.frame_to_frame(lag=0 if lag is None else int(lag))
     else:
-        policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag))
+        # an explicit gap is kept on static stretches too (no frame to frame while calm)
+        policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag), calm_fraction=0.0)
     if segment is not None:
         policy = policy._replace(segment=bool(segment))
     try:
@@ -363,8 +365,9 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
               help="Each frame is estimated against a reference (keyframe) up to this many frames back "
-                   "(earlier when the estimate says the reference no longer serves) [default: 6]; "
-                   "1 = frame to frame (see jaxvo.TrackConfig).")
+                   "(earlier when the estimate says the reference no longer serves) [default: 6, and "
+                   "frame to frame while the segmentation sees nothing move; a gap given here is kept "
+                   "throughout]; 1 = frame to frame (see jaxvo.TrackConfig).")
 @click.option("--keyframe-lag", type=click.IntRange(min=0), default=None,
               help="After the reference moves it is this many frames behind the current one "
                    "[default: half of --keyframe-gap].")
