@@ -213,7 +213,9 @@ class TrackConfig(NamedTuple):
 
     The default is jaxvo's robust tracking: keyframes (gap 6, lag 3) with a
     segmentation that persists across frames (``segment``, see
-    :mod:`jaxvo.segmentation`). :meth:`frame_to_frame` is the paper's chaining
+    :mod:`jaxvo.segmentation`), frame to frame while the segmentation sees nothing move
+    (``calm_fraction``), and the pose of each new reference made from more than its own
+    estimate (``fuse``, ``smooth``). :meth:`frame_to_frame` is the paper's chaining
     (no segmentation), :meth:`keyframes` the keyframes alone.
 
     Why keyframes: between consecutive frames (33 ms) people who walk at ~1 m/s move
