@@ -114,7 +114,10 @@ def exp(xi):
     V = I + B[..., None, None] * W + C[..., None, None] * W2
     t = (V @ v[..., None])[..., 0]
     top = xp.concatenate([R, t[..., None]], -1)
-    bottom = xp.broadcast_to(xp.asarray([0.0, 0.0, 0.0, 1.0], dtype=R.dtype), top.shape[:-2] + (1, 4))
+    # (0, 0, 0, 1) from literals, not an array constant: traced code keeps no captured constant that
+    # would be threaded through loops and block XLA from merging repeated evaluations
+    lead = top.shape[:-2] + (1,)
+    bottom = xp.concatenate([xp.zeros(lead + (3,), R.dtype), xp.ones(lead + (1,), R.dtype)], -1)
     return xp.concatenate([top, bottom], -2)
 
 
@@ -219,7 +222,10 @@ def transform_from_quat_trans(q, t):
     R = matrix_from_quat(xp.asarray(q))
     t = xp.asarray(t, dtype=R.dtype)
     top = xp.concatenate([R, t[..., None]], -1)
-    bottom = xp.broadcast_to(xp.asarray([0.0, 0.0, 0.0, 1.0], dtype=R.dtype), top.shape[:-2] + (1, 4))
+    # (0, 0, 0, 1) from literals, not an array constant: traced code keeps no captured constant that
+    # would be threaded through loops and block XLA from merging repeated evaluations
+    lead = top.shape[:-2] + (1,)
+    bottom = xp.concatenate([xp.zeros(lead + (3,), R.dtype), xp.ones(lead + (1,), R.dtype)], -1)
     return xp.concatenate([top, bottom], -2)
 
 

@@ -33,7 +33,7 @@ from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, num_levels_for
 from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
-from jaxvo.solvers import irls, solve_pose, solve_pose_small
+from jaxvo.solvers import irls, jit, solve_pose, solve_pose_small
 
 __all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "Odometry", "track", "Track",
            "TrackConfig", "TrackStep", "METHODS", "trace_count"]
@@ -161,7 +161,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
                           jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
 
 
-_estimate_jit = jax.jit(_estimate)
+_estimate_jit = jit(_estimate)
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):
