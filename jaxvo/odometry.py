@@ -302,6 +302,11 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
+    return _estimate_jit(*_estimate_args(ref, cur, camera, config, key, init, weights))
+
+
+def _estimate_args(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config], key, init, weights):
+    """The checked arguments of the compiled estimate for :func:`estimate_motion`'s inputs."""
     config = _checked_settings(config, camera)
     validate_pair(ref, cur, camera)
     h, w = ref.intensity.shape
@@ -314,9 +319,9 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
     T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
     if T0.shape != (4, 4):
         raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
-    return _estimate_jit(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
-                         jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
-                         camera, config, key, T0, _reference_weights(ref, weights))
+    return (jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
+            jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
+            camera, config, key, T0, _reference_weights(ref, weights))
 
 
 def _reference_weights(ref: Frame, weights=None):
@@ -411,6 +416,18 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
 _VIEWS = 12
 
 
+class PairInputs(NamedTuple):
+    """The inputs of one estimate of :class:`Odometry` (from :meth:`Odometry.prepare`):
+    ``estimate_motion(ref, cur, camera, config, key, init=init, weights=weights)``.
+    T_ref_prev: (4, 4) float64, the previous frame's pose relative to the reference (host)."""
+    ref: Frame
+    cur: Frame
+    key: jnp.ndarray
+    init: np.ndarray
+    weights: Optional[jnp.ndarray]
+    T_ref_prev: np.ndarray
+
+
 class Odometry:
     """Streaming odometry: push frames one at a time, get each frame's pose at once.
 
@@ -458,6 +475,16 @@ class Odometry:
 
     def add(self, frame: Frame) -> TrackStep:
         """Add the next frame; returns its :class:`TrackStep` (pose, estimate, reference)."""
+        pair = self.prepare(frame)
+        if pair is None:
+            return TrackStep(0, -1, None, self._first, True, None)
+        return self.finish(pair, estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
+                                                 init=pair.init, weights=pair.weights))
+
+    def prepare(self, frame: Frame) -> Optional["PairInputs"]:
+        """The first half of :meth:`add`: record the frame and return the inputs of its estimate
+        (None for the first frame, whose pose is set). Pass the estimate of those inputs to
+        :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch)."""
         j = len(self.poses)
         self._frames[j] = frame
         if self.policy.segment:
@@ -466,12 +493,17 @@ class Odometry:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
-            return TrackStep(0, -1, None, self._first, True, None)
+            return None
+        T_ref_prev = geometry.inverse(self.poses[self._ref]) @ self.poses[j - 1]
+        weights = _trust(self._L, tuple(frame.depth.shape)) if self.policy.segment else None
+        return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
+                          geometry.inverse(T_ref_prev), weights, T_ref_prev)
+
+    def finish(self, pair: "PairInputs", est: MotionEstimate) -> TrackStep:
+        """The second half of :meth:`add`: chain the estimate of :meth:`prepare`'s inputs and
+        update the policy and segmentation; returns the frame's :class:`TrackStep`."""
+        j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.weights
         policy, ref, poses = self.policy, self._ref, self.poses
-        T_ref_prev = geometry.inverse(poses[ref]) @ poses[j - 1]
-        weights = _trust(self._L, tuple(frame.depth.shape)) if policy.segment else None
-        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, jax.random.fold_in(self.key, j - 1),
-                              init=geometry.inverse(T_ref_prev), weights=weights)
         if policy.segment:
             ratio_static = _static_inlier_ratio(est.inlier_mask, est.valid_mask, weights)
             T, ratio, ok, ratio_static = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid, ratio_static))
