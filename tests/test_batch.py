@@ -96,3 +96,34 @@ def test_batch_size_and_bad_inputs(frames):
                        odo.config)
     with pytest.raises(ValueError, match="one camera, key and callback per sequence"):
         track_batch([frames], [CAM, CAM])
+
+
+def _poses(path):
+    return np.loadtxt(path, comments="#")[:, 1:]
+
+
+def test_cli_runs_a_folder_of_sequences_as_one_batch(tmp_path):
+    """`jaxvo run FOLDER` with two sequence folders inside: one trajectory and one summary line per
+    sequence, the poses of each sequence run alone."""
+    from click.testing import CliRunner
+
+    from jaxvo.cli import main
+
+    def invoke(*args):
+        r = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+        assert r.exit_code == 0, r.output
+        return r.output
+    for seed in (3, 4):
+        invoke("synth", "seq1", tmp_path / "seqs" / f"s{seed}", "--frames", 5, "--seed", seed, "--size", "160x120",
+               "--no-progress")
+    out = invoke("run", tmp_path / "seqs", "--method", "classic", "--out-dir", tmp_path / "out", "--no-progress")
+    assert "2 sequences in 1 batch(es)" in out
+    for seed in (3, 4):
+        assert f"s{seed}: 5 frames" in out
+        invoke("run", tmp_path / "seqs" / f"s{seed}", "--method", "classic", "--out", tmp_path / f"alone{seed}.txt",
+               "--no-progress")
+        np.testing.assert_allclose(_poses(tmp_path / "out" / f"s{seed}.txt"), _poses(tmp_path / f"alone{seed}.txt"),
+                                   atol=1e-4)
+    r = CliRunner().invoke(main, ["run", str(tmp_path / "seqs" / "s3"), str(tmp_path / "seqs" / "s4"),
+                                  "--out", str(tmp_path / "x.txt")])
+    assert r.exit_code == 2 and "use --out-dir" in r.output
