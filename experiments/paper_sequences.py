@@ -6,7 +6,8 @@ seq2 with two persons) and ``handheld-fast`` (fast hand-held camera, a person cl
 fast), runs the three estimators on every consecutive pair and reports, per sequence and
 method: translational / rotational RPE (per frame and over 1 s), ATE, the drift of the last
 frame, FPS after compilation, the mean inlier ratio and the precision / recall / IoU of the
-outlier mask (``valid & ~inlier``, on the reference frame's pixels) against the true
+moving mask (:func:`jaxvo.mapping.moving_mask`: outliers not hidden in the current frame,
+plus the segmentation's dynamic pixels, on the reference frame's pixels) against the true
 moving-pixel masks. Figures per sequence (like the paper's Fig. 5/6): trajectories (top view,
 aligned to ground truth) and translational error over time for the three methods, plus
 RANSAC's inlier/outlier overlay on the most dynamic frame (Fig. 4/7).
@@ -35,7 +36,7 @@ import jax  # noqa: E402
 from jaxvo import geometry, metrics, trajectory, viz  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
 from jaxvo.datasets import TumSequence  # noqa: E402
-from jaxvo.mapping import load_mask, outlier_mask, read_moving_masks  # noqa: E402
+from jaxvo.mapping import load_mask, moving_mask, read_moving_masks  # noqa: E402
 from jaxvo.odometry import METHODS, Config, TrackConfig, track  # noqa: E402
 
 SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast")
@@ -128,8 +129,8 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
 
 def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
-    form as :func:`run_one`. Its outlier mask (on the reference of each estimate) is the estimate's
-    outliers plus what the segmentation marked dynamic; seconds per frame include the map updates."""
+    form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
+    outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates."""
     cam = seq.camera
     counts = np.zeros(4, np.int64)
     cover = np.array([m.mean() for m in true_masks[:-1]])
@@ -138,9 +139,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
 
     def on_step(step):
         est = step.estimate
-        pred, val = outlier_mask(est, cam.width, cam.height), np.asarray(est.valid_mask, bool)
-        if step.static_mask is not None:
-            pred, val = pred | ~step.static_mask, val | ~step.static_mask
+        pred, val = moving_mask(est, cam.width, cam.height, step.static_mask, valid_too=True)
         s = metrics.mask_scores(pred, true_masks[step.reference], val)
         counts[:] += (s.tp, s.fp, s.fn, s.tn)
         if step.reference == show:
@@ -179,8 +178,7 @@ def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key) 
         est, secs[k] = common.time_jaxvo_pair(frames[k], frames[k + 1], cam, cfg, jax.random.fold_in(key, k))
         rel[k] = np.asarray(est.T_cur_ref, np.float64)
         ratio[k] = float(est.inlier_ratio)
-        pred = outlier_mask(est, cam.width, cam.height)
-        val = outlier_mask(est._replace(inlier_mask=np.zeros_like(np.asarray(est.valid_mask))), cam.width, cam.height)
+        pred, val = moving_mask(est, cam.width, cam.height, valid_too=True)
         s = metrics.mask_scores(pred, true_masks[k], val)
         counts += (s.tp, s.fp, s.fn, s.tn)
         if k == show:
@@ -278,8 +276,9 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     lines += ["RPE per frame: RMSE translational (mm/frame) and rotational (deg/frame) error of consecutive "
               "pairs; RPE 1 s: drift in m/s and deg/s (n/a when the run is shorter than 1 s); ATE: RMSE (m) "
               "after rigid alignment; drift: error of the last pose relative to the first (cm, deg); FPS "
-              "after compilation (1000 / median ms per pair, this machine); mask P/R/IoU: outlier mask "
-              "(residuals defined but not an inlier) against the true moving-pixel mask, pooled over "
+              "after compilation (1000 / median ms per pair, this machine); mask P/R/IoU: moving mask "
+              "(outliers not hidden by something in front in the current frame, plus the segmentation's "
+              "dynamic pixels; jaxvo.mapping.moving_mask) against the true moving-pixel mask, pooled over "
               "all pairs, over the pixels where the residuals are defined.", ""]
     cols = [("sequence", "sequence", "s"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),
             ("RPE mm/frame", "rpef_t_mm", ".2f"), ("RPE deg/frame", "rpef_r", ".3f"),

@@ -13,7 +13,8 @@ import numpy as np
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.datasets import DatasetError, TumSequence
 from jaxvo.evaluation import load_mask, true_masks
-from jaxvo.runner import outlier_mask, run_sequence
+from jaxvo.mapping import moving_mask
+from jaxvo.runner import run_sequence
 
 __all__ = ["run_demo", "DEMO_METHODS", "parse_size", "fmt", "progress_bar"]
 DEMO_METHODS = ("classic", "huber", "ransac")
@@ -115,9 +116,7 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
 
             def on_pair(step, counts=counts, method=method):
                 est = step.estimate
-                pred, val = outlier_mask(est, cam.width, cam.height, valid_too=True)
-                if step.static_mask is not None:   # the segmentation's dynamic pixels are outliers too
-                    pred, val = pred | ~step.static_mask, val | ~step.static_mask
+                pred, val = moving_mask(est, cam.width, cam.height, step.static_mask, valid_too=True)
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
                 seen.setdefault(method, {})[step.reference] = (~pred, val)

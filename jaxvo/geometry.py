@@ -26,7 +26,7 @@ __all__ = [
     "skew", "vee", "hat", "exp", "log", "exp_so3", "log_so3",
     "compose", "inverse", "matrix_from_quat", "quat_from_matrix",
     "transform_from_quat_trans", "quat_trans_from_transform",
-    "transform_points", "rotation_angle", "project_to_so3",
+    "transform_points", "rotation_angle", "project_to_so3", "interpolate", "fit_motion",
 ]
 
 
@@ -258,3 +258,25 @@ def project_to_so3(M):
     D = xp.ones(U.shape[:-1], dtype=U.dtype)
     D = xp.concatenate([D[..., :2], d[..., None]], -1)
     return (U * D[..., None, :]) @ Vt
+
+
+def interpolate(T_a, T_b, s):
+    """Pose a fraction ``s`` of the way from ``T_a`` to ``T_b`` (both (4, 4) T_world_x) along the
+    twist between them: ``T_a @ exp(s * log(T_a^-1 @ T_b))``; s = 0.5 is the midpoint."""
+    return T_a @ exp(s * log(inverse(T_a) @ T_b))
+
+
+def fit_motion(t, T_ref_f, t_query):
+    """Least-squares smooth motion through observed poses, evaluated at ``t_query``.
+
+    t: (N,) times of the observations after the reference (any unit; the reference is at 0).
+    T_ref_f: (N, 4, 4) pose of each observation in the reference's frame (T_ref_f = T_cur_ref^-1).
+    Fits the twists ``log(T_ref_f) ~ a t + b t^2`` (through the identity at t = 0, as the
+    reference is where it is by definition) and returns (4, 4) ``exp(a tq + b tq^2)``. Exact for
+    a constant screw motion (log(T) = xi t). Needs N >= 2 distinct non-zero times.
+    """
+    t = np.asarray(t, np.float64)
+    X = log(np.asarray(T_ref_f, np.float64))
+    coef = np.linalg.lstsq(np.stack([t, t * t], 1), X, rcond=None)[0]
+    tq = float(t_query)
+    return exp(np.array([tq, tq * tq]) @ coef)

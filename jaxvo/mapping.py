@@ -29,7 +29,7 @@ from typing import Callable, Dict, Optional, Sequence, Tuple
 import numpy as np
 
 __all__ = ["MOVING_COLOUR", "PointCloud", "MapResult", "match_trajectory", "backproject_frame",
-           "outlier_mask", "read_moving_masks", "load_mask", "voxel_downsample", "build_map", "write_ply",
+           "outlier_mask", "moving_mask", "read_moving_masks", "load_mask", "voxel_downsample", "build_map", "write_ply",
            "read_ply", "render_preview", "preview_image"]
 
 #: Colour of moving (outlier) points, RGB 0-255: the paper's outlier green (``jaxvo.viz.OUTLIER_COLOUR``).
@@ -121,16 +121,40 @@ def backproject_frame(rgb, depth, camera, T_world_cam, max_depth: float = 4.0, s
     return Pw, np.asarray(rgb)[r, c].astype(np.uint8), (r, c)
 
 
-def outlier_mask(est, width: int, height: int) -> np.ndarray:
-    """(H, W) bool outlier mask ``valid_mask & ~inlier_mask`` of a MotionEstimate, resized (nearest)
-    to full size when the estimate stopped at a coarser level."""
-    inl = np.asarray(est.inlier_mask, bool)
-    val = np.asarray(est.valid_mask, bool)
-    out = val & ~inl
-    if out.shape != (height, width):
+def _full_size(m, width: int, height: int) -> np.ndarray:
+    """(h, w) bool -> (height, width), nearest neighbour (estimates that stopped at a coarser level)."""
+    m = np.asarray(m, bool)
+    if m.shape != (height, width):
         import cv2
-        out = cv2.resize(out.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
-    return out
+        m = cv2.resize(m.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return m
+
+
+def outlier_mask(est, width: int, height: int, valid_too: bool = False):
+    """(H, W) bool outlier mask ``valid_mask & ~inlier_mask`` of a MotionEstimate on the reference
+    frame's pixels, at full size; with ``valid_too`` also the (H, W) valid mask."""
+    val = _full_size(est.valid_mask, width, height)
+    out = val & ~_full_size(est.inlier_mask, width, height)
+    return (out, val) if valid_too else out
+
+
+def moving_mask(est, width: int, height: int, static_mask=None, valid_too: bool = False):
+    """(H, W) bool: the reference pixels an estimate explains as moving.
+
+    Its outliers, less those hidden in the current frame (``est.occluded_mask``: something
+    stepped in front of them, which says nothing about the pixel itself; on the synthetic
+    sequences they were a third of the outliers that were not on a moving object), plus
+    the pixels the segmentation did not trust as static (``static_mask`` False, the
+    :class:`~jaxvo.odometry.TrackStep` field). With ``valid_too`` also the mask of pixels
+    where this is decided (the estimate's valid pixels and the segmentation's dynamic ones).
+    """
+    out, val = outlier_mask(est, width, height, valid_too=True)
+    if getattr(est, "occluded_mask", None) is not None:
+        out = out & ~_full_size(est.occluded_mask, width, height)
+    if static_mask is not None:
+        dyn = ~np.asarray(static_mask, bool)
+        out, val = out | dyn, val | dyn
+    return (out, val) if valid_too else out
 
 
 def read_moving_masks(seq_dir) -> Optional[Tuple[np.ndarray, list]]:
@@ -274,7 +298,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
             j = i + 1 if i + 1 < len(seq) else i - 1
             other = load(j)[2]
             est = estimate_motion(fr, other, cam, config, jax.random.fold_in(key, i))
-            moving_img = outlier_mask(est, W, H)
+            moving_img = moving_mask(est, W, H)
             ratio = float(est.inlier_ratio)
         elif labels == "masks":
             mt, mp = masks

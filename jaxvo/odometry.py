@@ -26,14 +26,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo import geometry, segmentation
+from jaxvo import aot, geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, num_levels_for
 from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
-from jaxvo.solvers import irls, jit, solve_pose, solve_pose_small
+from jaxvo.solvers import COMPILER_OPTIONS, irls, jit, solve_pose, solve_pose_small
 
 __all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "Odometry", "track", "Track",
            "TrackConfig", "TrackStep", "METHODS", "trace_count"]
@@ -56,6 +56,10 @@ class MotionEstimate(NamedTuple):
     information: (6, 6) J^T W J / sigma^2 at the finest level (inverse covariance of a
       left perturbation of T_cur_ref, twist order (w, v)).
     residual_rms: weighted RMS photometric residual at the finest level (0-255 units).
+    occluded_mask: (h, w) bool at the finest level processed: valid pixels whose current
+      depth is more than thresh_depth in front of the warped reference point: something
+      came between, so the reference pixel is hidden, not moving (see
+      :func:`jaxvo.mapping.moving_mask`). None where an estimate was made without it.
     """
     T_cur_ref: jnp.ndarray
     xi: jnp.ndarray
@@ -67,6 +71,7 @@ class MotionEstimate(NamedTuple):
     valid: jnp.ndarray
     information: jnp.ndarray
     residual_rms: jnp.ndarray
+    occluded_mask: Optional[jnp.ndarray] = None
 
 
 _TRACES = {"count": 0}
@@ -118,7 +123,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             if level >= config.ransac_finest:  # finer levels: refine the carried-up consensus only
                 if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
                     T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
-                rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level),
+                rs = ransac_level(T, _gated(ref_l, cur_l, cam, T, config.sample_gate), cur_l, cam, score_pts,
+                                  jax.random.fold_in(key, level),
                                   p=config.p, w=config.w, thresh_lum=config.thresh_lum,
                                   thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
                                   n=config.n_points, radius=config.patch_radius,
@@ -158,10 +164,23 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     info = sol.hessian / jnp.maximum(var, 1e-6)
     valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
-                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var))
+                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var),
+                          (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl))
 
 
 _estimate_jit = jit(_estimate)
+
+
+def _gated(ref_l, cur_l, cam, T, gate):
+    """``ref_l`` with the weight of pixels whose depth residual at T exceeds ``gate`` set to 0
+    (RANSAC draws its samples among weight >= 0.5); unchanged if gate <= 0 or if fewer than
+    10 % of the trusted pixels would remain."""
+    res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
+    far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
+    trusted = (ref_l.depth > 0) & (ref_l.weight >= 0.5)
+    kept = jnp.sum(trusted & ~far)
+    apply = (gate > 0) & (kept >= 0.1 * jnp.sum(trusted))
+    return ref_l._replace(weight=jnp.where(apply & far, 0.0, ref_l.weight))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):
@@ -302,7 +321,10 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
-    return _estimate_jit(*_estimate_args(ref, cur, camera, config, key, init, weights))
+    args = _estimate_args(ref, cur, camera, config, key, init, weights)
+    # through the program exported into the cache folder when the CLI (jaxvo.cache.enable)
+    # switched that on: a second process then skips tracing; else plain jit
+    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_jit, args, COMPILER_OPTIONS))
 
 
 def _estimate_args(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config], key, init, weights):
@@ -393,10 +415,13 @@ def _trust(L, shape):
 
 
 @jax.jit
-def _static_inlier_ratio(inlier_mask, valid_mask, weights):
-    """Inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5)."""
+def _trust_ratios(inlier_mask, valid_mask, weights):
+    """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
+    fraction of the valid reference pixels it does not trust)."""
     trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
-    return jnp.sum(inlier_mask & trusted) / jnp.maximum(jnp.sum(valid_mask & trusted), 1)
+    n_valid = jnp.maximum(jnp.sum(valid_mask), 1)
+    return (jnp.sum(inlier_mask & trusted) / jnp.maximum(jnp.sum(valid_mask & trusted), 1),
+            jnp.sum(valid_mask & ~trusted) / n_valid)
 
 
 @jax.jit
@@ -410,6 +435,9 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
     return segmentation.coherent_regions(L, new_md, camera, params)
 
+
+# frames over which a failed frame's coasting velocity is averaged
+_VELOCITY_FRAMES = 10
 
 # views that vote on a new reference's segmentation: a fixed number so that the map
 # update compiles once (missing views are padding with valid = False)
@@ -463,7 +491,10 @@ class Odometry:
         self._frames: dict = {}         # index -> Frame that may still serve as reference
         self._depths: dict = {}         # index -> map-level depth, for the segmentation's votes
         self._ref = 0
+        self._anchor: dict = {}         # reference index -> the pose later frames chain from
+        self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
         self._L = None                  # dynamic log-odds of the reference, map level
+        self._dynamic = 1.0             # fraction of the reference's valid pixels the map does not trust
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -494,7 +525,8 @@ class Odometry:
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
             return None
-        T_ref_prev = geometry.inverse(self.poses[self._ref]) @ self.poses[j - 1]
+        T_world_ref = self._anchor.get(self._ref, self.poses[self._ref])
+        T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
         weights = _trust(self._L, tuple(frame.depth.shape)) if self.policy.segment else None
         return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
                           geometry.inverse(T_ref_prev), weights, T_ref_prev)
@@ -504,23 +536,15 @@ class Odometry:
         update the policy and segmentation; returns the frame's :class:`TrackStep`."""
         j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.weights
         policy, ref, poses = self.policy, self._ref, self.poses
-        if policy.segment:
-            ratio_static = _static_inlier_ratio(est.inlier_mask, est.valid_mask, weights)
-            T, ratio, ok, ratio_static = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid, ratio_static))
-        else:
-            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))  # one transfer
-            ratio_static = ratio
-        T = _rigid(T)
-        valid = bool(ok) and bool(np.all(np.isfinite(T)))
-        if valid:
-            step = T @ T_ref_prev                          # T_cur_prev
-            valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
-                     and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg))
-        pose = poses[j - 1].copy() if not valid and policy.hold_invalid else poses[ref] @ geometry.inverse(T)
+        T_world_ref = self._anchor.get(ref, poses[ref])
+        T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights)
+        pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
-        self.inlier_ratio.append(float(ratio))
+        self.inlier_ratio.append(ratio)
         self.references.append(ref)
+        if valid:
+            self._rel[j] = T
         static_mask = None
         if policy.segment:
             static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
@@ -528,14 +552,94 @@ class Odometry:
                 self._L = _update_map(self._L, self._depths[ref], self._depths[j], jnp.asarray(T, jnp.float32),
                                       self._map_cam, self.params)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
-        self._maybe_switch(j, T, float(ratio_static))
+        self._maybe_switch(j, T, ratio_static)
         return result
+
+    def _held(self, j: int) -> np.ndarray:
+        """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity
+        of the last :data:`_VELOCITY_FRAMES` frames while fewer than ``policy.coast`` frames in a
+        row have failed (a mean over 1/3 s: single estimates are off by several mm)."""
+        P = self.poses
+        failed = 0
+        while failed < len(self.valid) and not self.valid[-1 - failed]:
+            failed += 1
+        n = min(_VELOCITY_FRAMES, j - 1)
+        if failed >= self.policy.coast or n < 1:
+            return P[j - 1].copy()
+        xi = geometry.log(geometry.inverse(P[j - 1 - n]) @ P[j - 1]) / n
+        return P[j - 1] @ geometry.exp(xi)
+
+    def _estimate(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
+        """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
+        (float64 T_ref_guess). Returns (estimate, T_cur_ref float64, inlier ratio, inlier ratio
+        over trusted pixels, valid), valid also requiring a plausible step from the guess."""
+        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
+                              init=geometry.inverse(T_ref_prev), weights=weights)
+        return (est,) + self._judge(est, T_ref_prev, weights)
+
+    def _judge(self, est: MotionEstimate, T_ref_prev: np.ndarray, weights):
+        """(T_cur_ref float64, inlier ratio, inlier ratio over trusted pixels, valid) of an estimate
+        from the initial guess ``T_ref_prev``; valid also requires a plausible step from the guess."""
+        policy = self.policy
+        if policy.segment:
+            T, ratio, ok, (ratio_static, self._dynamic) = jax.device_get(   # one transfer
+                (est.T_cur_ref, est.inlier_ratio, est.valid, _trust_ratios(est.inlier_mask, est.valid_mask, weights)))
+        else:
+            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
+            ratio_static = ratio
+        T = _rigid(T)
+        valid = bool(ok) and bool(np.all(np.isfinite(T)))
+        if valid:
+            step = T @ T_ref_prev                          # T_cur_guess
+            valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
+                     and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg))
+        return T, float(ratio), float(ratio_static), valid
+
+    def _smoothed(self, new: int) -> np.ndarray:
+        """Pose of ``new`` from a smooth fit to all estimates against its reference.
+
+        The frames estimated against the same reference have independent errors of several
+        mm while a hand-held camera moves smoothly over a few frames, so a least-squares fit of
+        the twists log(T_ref_f) with a t + b t^2 (t: frames after the reference, through zero at
+        the reference itself) is a better pose for a new reference than its own estimate."""
+        pose = self.poses[new]
+        parent = self.references[new - 1]
+        if not self.policy.smooth or new not in self._rel:
+            return pose
+        fs = [f for f in self._rel if f > parent and self.references[f - 1] == parent]
+        if len(fs) < 3:
+            return pose
+        T_parent_new = geometry.fit_motion(np.array(fs) - parent, geometry.inverse(np.stack([self._rel[f] for f in fs])),
+                                           new - parent)
+        return self._anchor.get(parent, self.poses[parent]) @ T_parent_new
+
+    def _fused_anchor(self, new: int, j: int) -> np.ndarray:
+        """The pose later frames chain from when ``new`` becomes the reference.
+
+        ``new`` was estimated against ``self.references[new - 1]``; if that is not the
+        current reference (the references would form interleaved chains), estimate it
+        against the current reference as well and average the two poses (midpoint on SE(3))."""
+        old, pose = self._ref, self._smoothed(new)
+        parent = self.references[new - 1]
+        if not self.policy.fuse or parent == old or new <= old:
+            return pose
+        T_world_old = self._anchor.get(old, self.poses[old])
+        weights = _trust(self._L, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
+        key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
+        _, T, _, _, valid = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose, weights)
+        if not valid:
+            return pose
+        other = T_world_old @ geometry.inverse(T)
+        return geometry.interpolate(pose, other, 0.5)
 
     def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float) -> None:
         policy, ref = self.policy, self._ref
         far = (np.linalg.norm(T_cur_ref[:3, 3]) > policy.switch_baseline
                or geometry.rotation_angle(T_cur_ref[:3, :3]) > np.radians(policy.switch_deg))
-        if j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
+        calm = policy.segment and self.valid[-1] and float(self._dynamic) < policy.calm_fraction
+        if calm:      # nothing moves: frame to frame, the shortest baseline
+            self._set_reference(j, j)
+        elif j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
             # the latest frame at least `lag` back whose own estimate succeeded: a failed
             # (held) frame has no trustworthy pose and must not become a reference
             good = [i for i in range(ref + 1, j - policy.lag + 1) if self.valid[i - 1]]
@@ -548,13 +652,19 @@ class Odometry:
             del self._frames[old]
         for old in [i for i in self._depths if i < keep_depth]:
             del self._depths[old]
+        for d in (self._anchor, self._rel):   # estimates against the last references only
+            for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap]:
+                del d[old]
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
+        P = dict(enumerate(self.poses))   # the poses the map's votes use: anchors where set
+        P.update(self._anchor)
+        P[new] = self._fused_anchor(new, j)
+        self._anchor[new] = P[new]
         self._ref = new
         if not self.policy.segment:
             return
-        P = self.poses
         # voters: earlier frames at offsets 2, 4, 8, ... and every frame after the new
         # reference up to the current one (all with successful estimates)
         earlier = [new - (2 << k) for k in range(self.policy.history)]

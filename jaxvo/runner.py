@@ -19,8 +19,9 @@ import numpy as np
 
 from jaxvo.camera import PRESETS, Camera
 from jaxvo.datasets import DatasetError, TumSequence, open_sequence
+from jaxvo.mapping import moving_mask
 
-__all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "outlier_mask", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
 
 
 def read_run_settings(path) -> dict:
@@ -129,19 +130,6 @@ def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=N
     return load_sequence(seq_dir, preset, fx, fy, cx, cy, max_frames=1).camera
 
 
-def outlier_mask(est, width: int, height: int, valid_too: bool = False):
-    """Full-size (H, W) bool outlier mask (valid & ~inlier) of an estimate (and the valid mask)."""
-    import cv2
-
-    inl = np.asarray(est.inlier_mask, bool)
-    val = np.asarray(est.valid_mask, bool)
-    out = val & ~inl
-    if out.shape != (height, width):
-        out = cv2.resize(out.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
-        val = cv2.resize(val.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
-    return (out, val) if valid_too else out
-
-
 def stamp_name(t: float) -> str:
     return f"{float(t):.6f}"
 
@@ -220,9 +208,7 @@ class _Recorder:
         if self.writer is not None:
             self.writer.write(self.stamps[i + 1], pose)
         if self.mask_dir is not None:
-            m = outlier_mask(est, self.seq.camera.width, self.seq.camera.height)
-            if step.static_mask is not None:   # what the segmentation marked dynamic is an outlier too
-                m = m | ~step.static_mask
+            m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
             p = self.mask_dir / f"{stamp_name(self.stamps[ref])}.png"
             if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
                 raise OSError(f"{p}: could not write mask image")

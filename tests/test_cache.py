@@ -7,9 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 from click.testing import CliRunner
 
-from jaxvo import cache
+from jaxvo import aot, cache
+from jaxvo.config import Config
 from jaxvo.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,14 +65,99 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
         assert "device cpu:0" in err or "device gpu:0" in err
         assert "Traceback" not in err
     entries = set(os.listdir(folder))
-    assert entries, "the first runs wrote no compiled program into the cache folder"
+    exported = set(os.listdir(folder / "exported"))
+    assert entries - {"exported"}, "the first runs wrote no compiled program into the cache folder"
+    assert len(exported) == 1 and not any(e.endswith(".tmp") for e in exported)
 
-    third = subprocess.run(_cmd(seq, tmp_path / "t3.txt"), capture_output=True, text=True, env=env, cwd=REPO,
-                           timeout=600)
+    # JAX logs each function it traces; the third process must trace no estimator
+    third = subprocess.run(_cmd(seq, tmp_path / "t3.txt"), capture_output=True, text=True,
+                           env={**env, "JAX_LOG_COMPILES": "1"}, cwd=REPO, timeout=600)
     assert third.returncode == 0, third.stderr
-    assert set(os.listdir(folder)) == entries
-    texts = {(tmp_path / f"t{k}.txt").read_text() for k in (1, 2, 3)}
-    assert len(texts) == 1  # the cached programs give the same trajectory
+    assert "Finished tracing" in third.stderr  # the log is on (the small helpers are traced)
+    assert "tracing estimate" not in third.stderr and "tracing _estimate" not in third.stderr
+    assert set(os.listdir(folder)) == entries and set(os.listdir(folder / "exported")) == exported
+    no_cache = subprocess.run(_cmd(seq, tmp_path / "t4.txt") + ["--no-cache"], capture_output=True, text=True,
+                              env=env, cwd=REPO, timeout=600)
+    assert no_cache.returncode == 0, no_cache.stderr
+    texts = {(tmp_path / f"t{k}.txt").read_text() for k in (1, 2, 3, 4)}
+    assert len(texts) == 1  # the cached and exported programs give bitwise the plain jit trajectory
+
+
+def _scaled(x, config):
+    return {"y": x * config.thresh_lum + config.n_points, "n": jnp.sum(x)}
+
+
+_scaled_jit = jax.jit(_scaled)
+
+
+def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatch):
+    """aot.call: the first call exports and writes the program, a fresh start (the in-process
+    memo cleared) loads it without tracing; a corrupt, truncated or foreign file is replaced by
+    a fresh export; an unwritable folder and traced arguments take the jit path; all give the
+    plain jit result."""
+    traces = []
+    monkeypatch.setattr(aot, "_PROGRAMS", {})
+    x = jnp.arange(6.0, dtype=jnp.float32).reshape(2, 3)
+    cfg = Config(thresh_lum=2.5)
+    want = jax.tree.leaves(_scaled_jit(x, cfg))
+
+    def fn(x, config):
+        traces.append(1)
+        return _scaled(x, config)
+
+    def run():
+        aot._PROGRAMS.clear()  # as a new process
+        before = aot.stats()
+        out = aot.call("scaled", fn, _scaled_jit, (x, cfg))
+        for a, b in zip(out, want):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        return {k: aot.stats()[k] - before[k] for k in before}
+
+    try:
+        assert aot.enable(tmp_path / "exported") == tmp_path / "exported"
+        assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0} and len(traces) == 1
+        (path,) = (tmp_path / "exported").iterdir()
+        assert run() == {"loaded": 1, "exported": 0, "fallbacks": 0} and len(traces) == 1
+        blob = path.read_bytes()
+        for bad in (blob[: len(blob) // 2], blob[:-1] + bytes([blob[-1] ^ 1]), b"", b"not an exported program"):
+            path.write_bytes(bad)
+            assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0}
+            assert run() == {"loaded": 1, "exported": 0, "fallbacks": 0}  # rewritten whole
+        # a file of another signature under this name (e.g. copied by hand) is stale, not used
+        other = aot.call("other", lambda v, c: _scaled(v, c), _scaled_jit, (x[:1], cfg))
+        assert len(other) == 2
+        (other_path,) = [p for p in (tmp_path / "exported").iterdir() if p.name.startswith("other")]
+        path.write_bytes(other_path.read_bytes())
+        assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0}
+        # traced arguments (vmap) never use the folder
+        n = len(traces)
+        ys = jax.vmap(lambda t: aot.call("scaled", fn, _scaled_jit, (x, cfg.replace(thresh_lum=t)))[1])(
+            jnp.array([1.0, 2.0]))  # leaves in key order: n, y
+        np.testing.assert_array_equal(np.asarray(ys[1]), np.asarray(x) * 2.0 + 6)
+        assert len(list((tmp_path / "exported").iterdir())) == 2 and len(traces) == n  # the jit path
+    finally:
+        aot.enable(None)
+    aot._PROGRAMS.clear()
+    assert aot.call("scaled", fn, _scaled_jit, (x, cfg))[1].shape == (2, 3)  # off: plain jit
+
+
+def test_unwritable_folder_still_runs_the_program(tmp_path, monkeypatch):
+    monkeypatch.setattr(aot, "_PROGRAMS", {})
+    folder = tmp_path / "exported"
+    try:
+        aot.enable(folder)
+
+        def refuse(*args, **kwargs):
+            raise PermissionError("read-only folder")
+        monkeypatch.setattr(aot.os, "open", refuse)
+        before = aot.stats()
+        x = jnp.ones((2, 3), jnp.float32)
+        out = aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
+        np.testing.assert_array_equal(np.asarray(out[0]), 6.0)  # n = sum(x)
+        np.testing.assert_array_equal(np.asarray(out[1]), 36.0)  # y = x * 30 + 6
+        assert aot.stats()["exported"] == before["exported"] + 1 and not list(folder.iterdir())
+    finally:
+        aot.enable(None)
 
 
 def test_cli_options_choose_the_folder(tmp_path):

@@ -40,7 +40,7 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("aug-cache")
 
 
-@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag"])
+@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup"])
 def test_help(name):
     r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
                        timeout=120)

@@ -311,3 +311,33 @@ def test_log_float32_jax_small_rotations(angle):
     T32 = jnp.asarray(G.exp(xi), jnp.float32)          # exact transform, rounded to float32
     out_jit = np.asarray(jax.jit(G.log)(T32))
     np.testing.assert_allclose(out_jit, xi, atol=2e-5)
+
+
+def test_interpolate_endpoints_and_equal_halves():
+    rng = np.random.default_rng(3)
+    Ta, Tb = G.exp(rng.normal(0, 0.4, 6)), G.exp(rng.normal(0, 0.4, 6))
+    np.testing.assert_allclose(G.interpolate(Ta, Tb, 0.0), Ta, atol=1e-12)
+    np.testing.assert_allclose(G.interpolate(Ta, Tb, 1.0), Tb, atol=1e-12)
+    M = G.interpolate(Ta, Tb, 0.5)
+    # the midpoint splits the motion into two equal steps ...
+    np.testing.assert_allclose(G.inverse(Ta) @ M, G.inverse(M) @ Tb, atol=1e-12)
+    # ... and its rotation is scipy's slerp midpoint
+    from scipy.spatial.transform import Slerp
+    slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([Ta[:3, :3], Tb[:3, :3]])))
+    np.testing.assert_allclose(M[:3, :3], slerp([0.5]).as_matrix()[0], atol=1e-12)
+
+
+def test_fit_motion_exact_on_screw_motion_and_averages_noise():
+    xi = np.array([0.01, -0.02, 0.005, 0.004, -0.003, 0.006])   # per frame
+    t = np.arange(1, 7)
+    T_ref_f = G.exp(t[:, None] * xi)
+    np.testing.assert_allclose(G.fit_motion(t, T_ref_f, 3), G.exp(3 * xi), atol=1e-12)
+    # noisy observations: the fit is closer to the truth than the observation itself
+    rng = np.random.default_rng(0)
+    raw, fit = [], []
+    for _ in range(200):
+        noisy = np.stack([T @ G.exp(rng.normal(0, 0.003, 6)) for T in T_ref_f])
+        truth = G.exp(3 * xi)
+        raw.append(np.linalg.norm(G.log(G.inverse(truth) @ noisy[2])))
+        fit.append(np.linalg.norm(G.log(G.inverse(truth) @ G.fit_motion(t, noisy, 3))))
+    assert np.mean(fit) < 0.75 * np.mean(raw)

@@ -118,3 +118,27 @@ def test_build_map_with_masks_and_preview(seq1_dir, tmp_path):
     assert img.shape == (120, 160, 3) and (img != 255).any()
     with pytest.raises(DatasetError, match="no trajectory pose"):
         mapping.build_map(seq, t + 100.0, T)
+
+
+def test_moving_mask_leaves_out_pixels_hidden_in_the_current_frame():
+    from types import SimpleNamespace
+    from jaxvo.mapping import moving_mask, outlier_mask
+    valid = np.ones((4, 6), bool)
+    valid[0, 0] = False
+    inlier = np.ones((4, 6), bool)
+    inlier[1, :3] = False                      # three outliers ...
+    occluded = np.zeros((4, 6), bool)
+    occluded[1, 2] = True                      # ... one of them hidden behind something new
+    est = SimpleNamespace(valid_mask=valid, inlier_mask=inlier, occluded_mask=occluded)
+    assert outlier_mask(est, 6, 4).sum() == 3
+    m = moving_mask(est, 6, 4)
+    assert m.sum() == 2 and m[1, 0] and m[1, 1] and not m[1, 2]
+    static = np.ones((4, 6), bool)
+    static[3, 5] = static[0, 0] = False        # the segmentation's dynamic pixels count, valid or not
+    m, v = moving_mask(est, 6, 4, static, valid_too=True)
+    assert m.sum() == 4 and m[3, 5] and m[0, 0] and v[0, 0]
+    # an estimate at half resolution is scaled up, nearest neighbour
+    half = SimpleNamespace(valid_mask=valid[:2, :3], inlier_mask=inlier[:2, :3], occluded_mask=occluded[:2, :3])
+    assert moving_mask(half, 6, 4).shape == (4, 6)
+    # estimates without the field (made by other code) keep all their outliers
+    assert moving_mask(SimpleNamespace(valid_mask=valid, inlier_mask=inlier), 6, 4).sum() == 3

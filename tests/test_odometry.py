@@ -205,8 +205,10 @@ def test_track_keyframe_references_and_poses(static_pair):
     a, b = static_pair
     frames = [a.frame(), b.frame()] * 4
     steps = []
-    tr = track(frames, CAM, Config(method="classic"), jax.random.key(0), policy=TrackConfig(max_gap=3, lag=1),
-               callback=steps.append)
+    # the frames jump back and forth, which no camera does: no smoothing of reference poses;
+    # the scene is static, so calm_fraction 0 keeps the keyframes
+    tr = track(frames, CAM, Config(method="classic"), jax.random.key(0),
+               policy=TrackConfig(max_gap=3, lag=1, smooth=False, calm_fraction=0.0), callback=steps.append)
     # frames 1-3 against 0; after frame 3 (gap 3) the reference moves to 3 - 1 = 2; after 5 to 4; ...
     assert tr.reference.tolist() == [0, 0, 0, 2, 2, 4, 4]
     assert [s.reference for s in steps] == tr.reference.tolist() and [s.frame for s in steps] == list(range(1, 8))
@@ -286,3 +288,34 @@ def test_public_api_exports():
     for name in ("estimate_motion", "track", "Config", "MotionEstimate", "Camera", "Frame", "make_frame",
                  "TrackConfig", "TrackStep", "Track", "Odometry"):
         assert hasattr(jaxvo, name), name
+
+
+def test_sample_gate_drops_pixels_something_stepped_in_front_of():
+    """RANSAC's sample centres skip reference pixels whose depth residual at the starting pose
+    exceeds Config.sample_gate (an occluder that arrived after the reference), and the gate
+    stands down when it would leave fewer than 10 % of the trusted pixels."""
+    from jaxvo.odometry import _gated
+    from jaxvo.pyramid import build_pyramid
+    cam = DEFAULT.at_level(2)
+    h, w = cam.height, cam.width
+    rng = np.random.default_rng(0)
+    img = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    wall = np.full((h, w), 2.0, np.float32)
+    ref_l = build_pyramid(jnp.asarray(img), jnp.asarray(wall), 1)[0]
+    I = jnp.eye(4, dtype=jnp.float32)
+
+    def gated(occluded, gate):
+        d = wall.copy()
+        d[occluded] = 1.2
+        cur_l = build_pyramid(jnp.asarray(img), jnp.asarray(d), 1)[0]
+        return np.asarray(_gated(ref_l, cur_l, cam, I, gate).weight)
+
+    person = np.zeros((h, w), bool)
+    person[20:100, 40:80] = True
+    wt = gated(person, 0.2)
+    assert (wt[person] == 0).all() and (wt[~person] == 1).all()
+    assert (gated(person, 0.0) == 1).all()                 # 0: off (Config.paper())
+    assert (gated(person, 1.0) == 1).all()                 # 0.8 m in front is under a 1 m gate
+    crowd = np.ones((h, w), bool)
+    crowd[:, :10] = False                                   # ~6 % of the wall still in view
+    assert (gated(crowd, 0.2) == 1).all()

@@ -152,7 +152,7 @@ def test_odometry_compiles_once(frames320):
 
 def _jitted():
     from jaxvo import odometry as O
-    return [O._map_depth, O._trust, O._static_inlier_ratio, O._update_map, O._new_reference_map]
+    return [O._map_depth, O._trust, O._trust_ratios, O._update_map, O._new_reference_map]
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
@@ -180,6 +180,21 @@ def test_odometry_segments_the_persons_and_tracks(frames320):
     assert precision > 0.75 and recall > 0.15, (precision, recall)
     E = geometry.inverse(s.poses[-1]) @ s.poses[0] @ geometry.inverse(tr.poses[0]) @ tr.poses[-1]
     assert np.linalg.norm(E[:3, 3]) < 0.02 and np.degrees(geometry.rotation_angle(E[:3, :3])) < 0.5
+
+
+def test_calm_scenes_go_frame_to_frame_and_persons_bring_keyframes(frames320):
+    """While the map sees nothing move, every frame is the next reference; once it has seen
+    the persons move the keyframes take over (TrackConfig.calm_fraction)."""
+    s, cam, rs = frames320
+    static = make_sequence("seq0", frames=6, seed=1, camera=cam)
+    calm = track([static.render(k).frame() for k in range(6)], cam, Config(), jax.random.key(0))
+    assert calm.reference.tolist() == [0, 1, 2, 3, 4]
+    busy = track([r.frame() for r in rs], cam, Config(), jax.random.key(0))
+    lag = np.arange(1, len(rs)) - busy.reference
+    assert (lag[12:] > 1).mean() > 0.5, busy.reference.tolist()
+    never = track([static.render(k).frame() for k in range(6)], cam, Config(), jax.random.key(0),
+                  policy=TrackConfig(calm_fraction=0.0))
+    assert never.reference.tolist() == [0, 0, 0, 0, 0]
 
 
 def test_frame_to_frame_policy_has_no_segmentation(frames320):

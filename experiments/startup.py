@@ -1,0 +1,242 @@
+"""Start-up cost of ``jaxvo run``: the first pair in a fresh process, with and without the caches.
+
+For each method, in a fresh (temporary) cache folder: ``jaxvo run SEQ --max-frames 2`` in a new
+process three times:
+
+1. ``first``: empty cache folder: trace, export, XLA compilation, one pair;
+2. ``second``: the same folder: the exported program and JAX's compiled executable are loaded
+   (no tracing, no compilation);
+3. ``no export``: the same folder with the exported programs deleted: JAX's compilation cache
+   alone (the estimator is traced and lowered, then its executable loaded), as before
+   ``jaxvo.aot``.
+
+Reported per run: ``first pair s`` (jaxvo's summary line ``compile``: from the start of tracking
+to the first pair's pose, reading, tracing, compiling and running it) and ``process s`` (the
+wall time of the whole process, interpreter start and imports included, for one pair).
+``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy).
+
+Then, unless ``--no-stages``, where the first compilation goes: the estimator alone
+(``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
+XLA-compiled in this process with no cache, each stage timed, and the size of the lowered
+program (lines of StableHLO text); and the default estimator's parts (prior fit, RANSAC
+hypotheses and scoring, refinement) at the finest and the coarsest level, each compiled alone.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import common  # noqa: F401  (sys.path for jaxvo)
+
+from jaxvo import cache  # noqa: E402
+
+SCRIPT = Path(__file__)
+RUNS = ("first", "second", "no export")
+METHOD_ARGS = {"default": [], "classic": ["--method", "classic"], "huber": ["--method", "huber"],
+               "ransac": ["--method", "ransac"]}
+
+
+def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sequence", default=None, help="sequence folder (default: the bundled fr2/desk excerpt)")
+    ap.add_argument("--methods", default="default,classic,huber",
+                    help=f"comma list of {', '.join(METHOD_ARGS)} (default: %(default)s)")
+    ap.add_argument("--no-stages", action="store_true", help="skip the trace / lower / compile breakdown")
+    ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, classic only (smoke test)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "startup.md", help="markdown output")
+    return ap.parse_args(argv)
+
+
+def run_once(seq: Path, method: str, folder: Path, out: Path) -> dict:
+    """One ``jaxvo run`` process for one pair; its first-pair time and process wall time."""
+    cmd = [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--max-frames", "2",
+           "--no-progress", "--force"] + METHOD_ARGS[method]
+    env = {**os.environ, cache.ENV: str(folder)}
+    t = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=common._REPO)
+    wall = time.perf_counter() - t
+    if r.returncode != 0:
+        raise SystemExit(f"error: {' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
+    m = re.search(r"^compile\s+([0-9.]+) s", r.stdout + r.stderr, re.M)
+    return {"first_pair_s": float(m.group(1)) if m else float("nan"), "process_s": wall}
+
+
+def startup_rows(seq: Path, methods: List[str]) -> List[dict]:
+    rows = []
+    for method in methods:
+        folder = Path(tempfile.mkdtemp(prefix="jaxvo-startup-"))
+        try:
+            for run in RUNS:
+                if run == "no export":
+                    shutil.rmtree(folder / "exported", ignore_errors=True)
+                r = run_once(seq, method, folder, folder / "traj.txt")
+                rows.append({"method": method, "run": run, **r})
+                print(f"{method:8s} {run:10s} first pair {r['first_pair_s']:6.1f} s  process {r['process_s']:6.1f} s",
+                      flush=True)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+    return rows
+
+
+def stage_rows(seq: Path, methods: List[str]) -> List[dict]:
+    """Trace / lower / XLA compile of the estimator alone, no cache (this process compiled nothing yet)."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxvo.config import Config
+    from jaxvo.odometry import _estimate_jit
+
+    s = common.open_sequence(seq)
+    h, w = s.camera.height, s.camera.width
+    img = jax.ShapeDtypeStruct((h, w), jnp.float32)
+    rows = []
+    for method in methods:
+        config = Config() if method == "default" else Config(method=method)
+        args = (img, img, img, img, s.camera, config, jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32),
+                img)
+        t0 = time.perf_counter()
+        traced = _estimate_jit.trace(*args)
+        t1 = time.perf_counter()
+        lowered = traced.lower()
+        t2 = time.perf_counter()
+        lines = lowered.as_text().count("\n")
+        t3, c3 = time.perf_counter(), time.process_time()
+        lowered.compile()
+        t4, c4 = time.perf_counter(), time.process_time()
+        rows.append({"method": method, "part": "whole estimator", "trace_s": t1 - t0, "lower_s": t2 - t1,
+                     "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines})
+        print(f"{method:8s} trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s "
+              f"(cpu {c4 - c3:.2f} s)  {lines} lines", flush=True)
+    return rows
+
+
+def part_rows(seq: Path) -> List[dict]:
+    """The default estimator's parts at the finest and the coarsest level, each compiled alone (the
+    level's pyramid and points included), to show which code the XLA compilation spends its time on."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxvo.config import Config
+    from jaxvo.pyramid import build_pyramid
+    from jaxvo.ransac import ransac_level
+    from jaxvo.residuals import reference_points, select_points
+    from jaxvo.solvers import irls, solve_pose_small
+
+    s = common.open_sequence(seq)
+    c = Config()
+    rows = []
+    for level in (0, 3):
+        cam = s.camera.at_level(level)
+        h, w = s.camera.height >> level, s.camera.width >> level
+        img = jax.ShapeDtypeStruct((h, w), jnp.float32)
+        T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
+
+        def prepared(i, d, i2, d2):
+            ref, cur = build_pyramid(i, d, 1, c.max_depth)[0], build_pyramid(i2, d2, 1, c.max_depth)[0]
+            return ref, cur, select_points(ref, cam, c.blocks[level])
+
+        def prior(i, d, i2, d2, T):
+            ref, cur, pts = prepared(i, d, i2, d2)
+            return solve_pose_small(T, pts, cur, cam, pts.weight, c.max_iterations).T
+
+        def hypotheses(i, d, i2, d2, T):
+            ref, cur, _ = prepared(i, d, i2, d2)
+            stride = max(1, int(np.ceil(np.sqrt(h * w / c.max_score_pixels))))
+            return ransac_level(T, ref, cur, cam, reference_points(ref, cam, stride), jax.random.key(0), p=c.p, w=c.w,
+                                thresh_lum=c.thresh_lum, thresh_depth=c.thresh_depth,
+                                early_exit_ratio=c.early_exit_ratio, n=c.n_points, radius=c.patch_radius,
+                                max_hypotheses=c.max_hypotheses, batch_size=c.batch_size,
+                                hypothesis_iterations=c.hypothesis_iterations, depth_weight=c.depth_weight,
+                                scoring=c.scoring).T
+
+        def refinement(i, d, i2, d2, T):
+            ref, cur, pts = prepared(i, d, i2, d2)
+            return irls(T, pts, cur, cam, pts.weight, c.huber_k, c.irls_rounds, c.irls_iterations).T
+
+        def pyramid_and_points(i, d, i2, d2, T):
+            return prepared(i, d, i2, d2)[2].points.sum() + T
+
+        for name, fn in (("pyramid level + points", pyramid_and_points), ("prior fit", prior),
+                         ("RANSAC hypotheses + scoring", hypotheses), ("refinement (Huber IRLS, jaxopt)", refinement)):
+            t0 = time.perf_counter()
+            lowered = jax.jit(fn).lower(img, img, img, img, T)
+            t1, c1 = time.perf_counter(), time.process_time()
+            lowered.compile()
+            t2, c2 = time.perf_counter(), time.process_time()
+            rows.append({"method": "default", "part": f"level {level} ({w}x{h}): {name}", "trace_s": float("nan"),
+                         "lower_s": t1 - t0, "compile_s": t2 - t1, "compile_cpu_s": c2 - c1,
+                         "lines": lowered.as_text().count("\n")})
+            print(f"level {level} {name:32s} XLA compile {t2 - t1:.2f} s (cpu {c2 - c1:.2f} s)", flush=True)
+    return rows
+
+
+def main(argv: Optional[List[str]] = None) -> None:
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    tmp = None
+    if args.quick:
+        tmp = Path(tempfile.mkdtemp(prefix="jaxvo-startup-seq-"))
+        seq = tmp / "seq"
+        subprocess.run([sys.executable, "-m", "jaxvo", "synth", "seq1", str(seq), "--frames", "3", "--size",
+                        "160x120", "--no-progress"], check=True, capture_output=True, cwd=common._REPO)
+        methods = ["classic"]
+    else:
+        seq = Path(args.sequence) if args.sequence else common.find_named("rgbd_dataset_freiburg2_desk")
+        if seq is None:
+            raise SystemExit(common.missing_data_message())
+        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+        bad = [m for m in methods if m not in METHOD_ARGS]
+        if bad:
+            raise SystemExit(f"error: --methods: unknown {', '.join(bad)} (choose from {', '.join(METHOD_ARGS)})")
+    try:
+        rows = startup_rows(seq, methods)
+        stages = [] if args.no_stages else stage_rows(seq, methods) + ([] if args.quick else part_rows(seq))
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    write(args, argv, seq, rows, stages, time.perf_counter() - t_start)
+
+
+def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: float) -> None:
+    lines = common.provenance_md("Start-up: the first pair of `jaxvo run` in a new process", str(SCRIPT), argv)
+    lines += [f"Sequence: `{seq.name}`, `jaxvo run SEQ --max-frames 2` (one pair) per process, each method in "
+              "its own fresh cache folder (`JAXVO_CACHE_DIR`). `first`: empty folder; `second`: the folder the "
+              "first run filled (exported program + JAX's compiled executables); `no export`: the same folder "
+              "without `exported/`, i.e. JAX's persistent compilation cache alone (tracing and lowering "
+              "still happen). `first pair s`: jaxvo's summary line `compile` (from the start of tracking to "
+              "the first pair's pose); `process s`: the whole process, interpreter start and imports included. "
+              "`default`: `jaxvo run` without options (ransac with the keyframe/segmentation policy). "
+              "Other processes may share this machine: compare rows of one run.", "",
+              "| method | run | first pair s | process s |", "| --- | --- | --- | --- |"]
+    lines += [f"| {r['method']} | {r['run']} | {r['first_pair_s']:.1f} | {r['process_s']:.1f} |" for r in rows]
+    if stages:
+        lines += ["", "## Where the first compilation goes", "",
+                  "The estimator alone (`jaxvo.odometry._estimate_jit`) at the sequence's image size, in one "
+                  "process with no cache: `jit(...).trace`, `.lower` (for the parts: both), `.compile` (XLA) "
+                  "timed separately; `cpu`: CPU seconds of the whole process during the XLA compilation (less "
+                  "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "
+                  "parts: pieces of the default estimator at one pyramid level, each compiled alone with that "
+                  "level's pyramid and reference points (the estimator compiles each of them once per level).",
+                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        for r in stages:
+            trace = "n/a" if r["trace_s"] != r["trace_s"] else f"{r['trace_s']:.2f}"  # NaN: traced with lower
+            lines.append(f"| {r['method']} | {r['part']} | {trace} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
+                         f"{r['compile_cpu_s']:.1f} | {r['lines']} |")
+    lines += ["", f"Total wall time {total_s:.0f} s."]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""The estimator's traced program kept on disk, so that a later process skips tracing it.
+
+JAX's persistent compilation cache (:mod:`jaxvo.cache`) is keyed by the *lowered* program:
+a process that finds its compiled estimator there must still trace and lower it first
+(about 3 s at 640x480 on a small CPU, most of a second process's start-up). This module
+keeps that lowered program too, as a ``jax.export`` serialization, in the folder given to
+:func:`enable` (``jaxvo.cache.enable`` uses ``<cache folder>/exported``). A later process
+deserializes it and calls it without tracing; its XLA compilation is then a hit in JAX's
+cache. The first process traces once, exports, writes the file and runs the exported
+program (one trace, one XLA compilation, as without this module).
+
+A file is named by a hash of everything that determines the program: the function's name,
+the jax and jaxlib versions, the backend (platform, its version, device kind), JAX's
+configuration values (but those of logging, caches and dumps) and ``XLA_FLAGS``, the source of every module of the jaxvo package,
+and the arguments' pytree structure (which holds the static fields of ``Config`` and the
+image size of ``Camera``) and abstract values (shape, dtype, weak type). A file whose
+checksum, format or abstract signature does not match is ignored and rewritten; any error
+while exporting, reading or running an exported program falls back to the ordinary jit
+path, so the worst a bad file costs is the time of tracing. Files are written under a
+temporary name and renamed (``os.replace``), so processes sharing the folder read either
+no file or a complete one; two processes that export the same program write equivalent
+files (they differ only in the source locations kept for error messages). Deleting the folder is always safe. Loading a file runs its program, so the folder
+must be as trusted as JAX's own cache folder (the user's cache directory).
+
+``jax.export`` serialization needs the ``flatbuffers`` package; without it every call takes
+the jit path. Calls whose arguments are tracers (``jax.vmap`` / ``jax.jit`` of the
+estimator) always take the jit path.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import uuid
+from pathlib import Path
+from typing import Callable, Dict, Optional, Tuple
+
+import jax
+
+__all__ = ["enable", "folder", "call", "program_key", "stats"]
+
+_MAGIC = b"jaxvo-exported-1\n"
+_FOLDER: Dict[str, Optional[Path]] = {"path": None}
+# per (name, tree, argument signature) in this process: the jitted exported program, or None = use jit
+_PROGRAMS: Dict[tuple, Optional[Callable]] = {}
+_STATS = {"loaded": 0, "exported": 0, "fallbacks": 0}
+_SOURCE: Dict[str, str] = {}
+# JAX settings that never change a traced program (logging, caches, dumps), left out of the
+# file name so that e.g. JAX_LOG_COMPILES=1 still finds the program
+_UNRELATED = re.compile(r"log|cache|explain|dump|traceback|pprint|transfer_guard|profil|timeout|verbose|report")
+
+
+def enable(path: Optional[os.PathLike]) -> Optional[Path]:
+    """Keep exported programs in ``path`` (created if missing); None switches it off.
+    Returns the folder in use, or None when it cannot be created."""
+    _PROGRAMS.clear()
+    if path is None:
+        _FOLDER["path"] = None
+        return None
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        _FOLDER["path"] = None
+        return None
+    _FOLDER["path"] = p
+    return p
+
+
+def folder() -> Optional[Path]:
+    """The folder of exported programs in use (None: off)."""
+    return _FOLDER["path"]
+
+
+def stats() -> dict:
+    """Counts in this process: programs ``loaded`` from files, ``exported`` (traced and written),
+    and ``fallbacks`` to the jit path; for tests and benchmarks."""
+    return dict(_STATS)
+
+
+def _source_hash() -> str:
+    if "hash" not in _SOURCE:
+        h = hashlib.sha256()
+        root = Path(__file__).resolve().parent
+        for f in sorted(root.rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+        _SOURCE["hash"] = h.hexdigest()
+    return _SOURCE["hash"]
+
+
+def _environment() -> str:
+    import jaxlib
+
+    dev = jax.devices()[0]
+    settings = sorted((k, repr(v)) for k, v in jax.config.values.items()
+                      if (v is None or isinstance(v, (bool, int, float, str))) and not _UNRELATED.search(k))
+    return repr((jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, dev.client.platform_version,
+                 os.environ.get("XLA_FLAGS", ""), settings, _source_hash()))
+
+
+def _avals(leaves) -> tuple:
+    return tuple(str(jax.typeof(x)) for x in leaves)
+
+
+def _signature(leaves) -> tuple:
+    """What fixes the abstract values of ``leaves``, cheaply (every call looks it up)."""
+    return tuple((type(x), getattr(x, "shape", None), getattr(x, "dtype", None), getattr(x, "weak_type", None))
+                 for x in leaves)
+
+
+def program_key(name: str, args) -> str:
+    """The hex name of ``name``'s exported program for these arguments (see the module docstring)."""
+    leaves, tree = jax.tree.flatten(args)
+    return hashlib.sha256(repr((name, str(tree), _avals(leaves), _environment())).encode()).hexdigest()
+
+
+def _read(path: Path, leaves):
+    """The Exported stored at ``path`` if it is complete and fits ``leaves``, else None."""
+    from jax import export
+
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    head = len(_MAGIC) + 32
+    if len(blob) < head or not blob.startswith(_MAGIC) or hashlib.sha256(blob[head:]).digest() != blob[len(_MAGIC):head]:
+        return None
+    exp = export.deserialize(bytearray(blob[head:]))
+    # (an exported signature drops weak types; the file name holds them)
+    if [(a.shape, a.dtype) for a in exp.in_avals] != [(t.shape, t.dtype) for t in map(jax.typeof, leaves)]:
+        return None
+    return exp
+
+
+def _write(path: Path, payload: bytes) -> None:
+    """Write atomically: a temporary file in the same folder, then ``os.replace``."""
+    tmp = path.parent / f"{path.name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)  # the umask applies, as for JAX's files
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(_MAGIC + hashlib.sha256(payload).digest() + payload)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callable:
+    """The exported program of ``fn`` for these arguments (read, or traced and written), jitted."""
+    from jax import export
+
+    path = _FOLDER["path"] / f"{name}-{program_key(name, jax.tree.unflatten(tree, leaves))}.jaxexport"
+    exp = None
+    try:
+        exp = _read(path, leaves)
+    except Exception:  # a corrupt or foreign file: export afresh below
+        exp = None
+    if exp is not None:
+        _STATS["loaded"] += 1
+    else:
+        def flat(*xs):
+            return tuple(jax.tree.leaves(fn(*jax.tree.unflatten(tree, xs))))
+        flat.__name__ = f"{name}_exported"
+        exp = export.export(jax.jit(flat))(*leaves)
+        _STATS["exported"] += 1
+        try:
+            _write(path, bytes(exp.serialize()))
+        except OSError:
+            pass  # a read-only or full folder: this process still runs the program
+    return jax.jit(exp.call, compiler_options=compiler_options)
+
+
+def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_options: Optional[dict] = None) -> tuple:
+    """``fn(*args)``'s result leaves (a flat tuple), through the exported program kept in the
+    folder (see the module docstring), or ``fn_jit(*args)``'s leaves where that is off or fails.
+
+    fn: the Python function (traced at most once per process and program); fn_jit: its
+    ``jax.jit``; compiler_options: the XLA options ``fn_jit`` was made with (the exported
+    program is compiled with the same ones). ``name`` names the files (letters, digits, ``_``).
+    """
+    leaves, tree = jax.tree.flatten(args)
+    if _FOLDER["path"] is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
+        return tuple(jax.tree.leaves(fn_jit(*args)))
+    memo = (name, tree, _signature(leaves))
+    if memo not in _PROGRAMS:
+        try:
+            _PROGRAMS[memo] = _program(name, fn, leaves, tree, compiler_options)
+        except Exception:  # e.g. flatbuffers missing, or a primitive jax.export refuses
+            _PROGRAMS[memo] = None
+    prog = _PROGRAMS[memo]
+    if prog is not None:
+        try:
+            return tuple(prog(*leaves))
+        except Exception:  # noqa: BLE001 - the program could not be compiled or run: use jit
+            _PROGRAMS[memo] = None
+    _STATS["fallbacks"] += 1
+    return tuple(jax.tree.leaves(fn_jit(*args)))
