@@ -169,6 +169,18 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
 
 
 _estimate_jit = jit(_estimate)
+_estimate_nested = jax.jit(_estimate)
+
+
+def _estimate_call(*args):
+    """``_estimate_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested jit with
+    compiler options) the plain jit, which then runs with the caller's program's options."""
+    try:
+        return _estimate_jit(*args)
+    except ValueError as e:
+        if "compiler_options" not in str(e):
+            raise
+        return _estimate_nested(*args)
 
 
 def _gated(ref_l, cur_l, cam, T, gate):
@@ -324,7 +336,7 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
     args = _estimate_args(ref, cur, camera, config, key, init, weights)
     # through the program exported into the cache folder when the CLI (jaxvo.cache.enable)
     # switched that on: a second process then skips tracing; else plain jit
-    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_jit, args, COMPILER_OPTIONS))
+    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, args, COMPILER_OPTIONS))
 
 
 def _estimate_args(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config], key, init, weights):
