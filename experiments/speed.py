@@ -41,6 +41,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 from jaxvo.odometry import METHODS, Config, estimate_motion, trace_count, track  # noqa: E402
+from jaxvo.solvers import jit  # noqa: E402
 
 STATIC = "rgbd_dataset_freiburg2_desk"
 DYNAMIC = "rgbd_bonn_crowd"
@@ -290,7 +291,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                 else:
                     T = solve_pose(T, pts, cl, lc, consensus, cfg.max_iterations, depth_weight=dw).T
             return T
-        return {name: jax.jit(f) for name, f in (("points", points), ("solve", solve), ("prior", prior),
+        return {name: jit(f) for name, f in (("points", points), ("solve", solve), ("prior", prior),
                                                  ("ransac", ransac), ("sample", sample), ("fit", fit),
                                                  ("score", score), ("refine", refine))}
 
@@ -300,7 +301,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
         cam = seq.camera
         L = _levels(cfg, cam.width, cam.height)
         if ("pyramid", L) not in fns:
-            fns["pyramid", L] = jax.jit(lambda i, d: build_pyramid(i, d, L, cfg.max_depth, jnp.ones_like(i)))
+            fns["pyramid", L] = jit(lambda i, d: build_pyramid(i, d, L, cfg.max_depth, jnp.ones_like(i)))
         pyr = fns["pyramid", L]
         acc: dict = {}
 
@@ -433,7 +434,7 @@ def _one_pair(ri, rd, ci, cd, key, camera, config):
 
 
 #: jit(vmap(estimate_motion)) over stacked pairs; frames, keys, camera and config are arguments.
-BATCHED = jax.jit(jax.vmap(_one_pair, in_axes=(0, 0, 0, 0, 0, None, None)))
+BATCHED = jit(jax.vmap(_one_pair, in_axes=(0, 0, 0, 0, 0, None, None)))
 
 
 def time_batches(seq, frames, pairs, batch_sizes, method, repeats, key):

@@ -35,6 +35,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 from jaxvo.odometry import METHODS, Config, estimate_motion  # noqa: E402
+from jaxvo.solvers import jit  # noqa: E402
 
 STATIC = "rgbd_dataset_freiburg2_desk"
 
@@ -87,7 +88,7 @@ def _one_cell(ri, rd, ci, cd, camera, base, key, tl, td, w):
 #: jit(vmap over the grid) of estimate_motion. Frames, camera, base config and key are
 #: arguments shared by all cells (not baked-in constants), so one compilation serves every
 #: pair and every sequence with the same image size and static config.
-SWEEP = jax.jit(jax.vmap(_one_cell, in_axes=(None,) * 7 + (0, 0, 0)))
+SWEEP = jit(jax.vmap(_one_cell, in_axes=(None,) * 7 + (0, 0, 0)))
 
 
 def run_sequence(path, args, base: Config, key, label: str):

@@ -28,7 +28,8 @@ from jaxvo.datasets import DatasetError
 from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
 from jaxvo.outputs import check_output, check_output_folder, finish, partial_path
-from jaxvo.runner import RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence
+from jaxvo.runner import (RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence,
+                          run_sequences)
 
 # run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
 __all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
@@ -316,14 +317,25 @@ RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long
 Pairs i -> i+1 use the random key jax.random.fold_in(jax.random.key(SEED), i), exactly as
 jaxvo.odometry.track does, so the CLI and the library give identical trajectories.
 
+Several SEQUENCE_DIRs (or a folder holding sequence folders) are tracked together: sequences
+of the same image size run as one batch (their estimates jax.vmap'd in lockstep, spread over
+the available devices with jax.sharding; each keeps its own keyframes and segmentation and the
+key of SEED), so the batch compiles once. Each sequence's trajectory goes to
+OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line.
+A batched pose equals the sequence's pose alone up to float rounding of the batched program
+(robust steps can turn that into ~1 mm, see jaxvo.batch).
+
 {CONVENTIONS}
 """)
-@click.argument("sequence_dir", type=click.Path(path_type=Path))
+@click.argument("sequence_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--method", type=click.Choice(["classic", "huber", "ransac"]), default=None,
               help="Estimator: classic least squares, Huber IRLS, or the paper's RANSAC. [default: ransac, "
                    "or the config file's]")
 @click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=Path("traj.txt"),
               show_default=True, help="Trajectory file to write (TUM format, T_world_cam).")
+@click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("."),
+              show_default=True, help="With several sequences: the folder for their trajectories "
+                                      "(<sequence name>.txt each).")
 @click.option("--max-frames", type=click.IntRange(min=2), default=None, help="Use at most N frames.")
 @click.option("--start", type=click.IntRange(min=0), default=0, show_default=True,
               help="Index of the first (associated) frame to use.")
@@ -385,10 +397,13 @@ jaxvo.odometry.track does, so the CLI and the library give identical trajectorie
 @FORCE
 @_compilation_cache
 @_handle_errors
-def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
+def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
             keyframe_lag, segment, frame_to_frame, paper, no_progress, force):
     from jaxvo.config import TrackConfig
+
+    dirs = _expand_sequences(sequence_dirs)
+    sequence_dir = dirs[0]
 
     settings = read_run_settings(config_file) if config_file is not None else {}
     ctx = click.get_current_context()
@@ -409,6 +424,16 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
         config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
                               finest_level=config.finest_level)
     policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment)
+    if len(dirs) > 1:
+        for name, value in (("--out", not default("out")), ("--save-masks", save_masks is not None),
+                            ("--mask-dir", mask_dir is not None)):
+            if value:
+                raise DatasetError(f"{name} is for one sequence; with {len(dirs)} sequences use --out-dir"
+                                   if name == "--out" else f"{name} is for one sequence, got {len(dirs)} sequences")
+        seqs = [load_sequence(d, camera_preset, fx, fy, cx, cy, depth_scale=depth_scale, max_dt=max_dt,
+                              start=start, max_frames=max_frames) for d in dirs]
+        _run_many(seqs, config, seed, policy, out_dir, [config_file], force, no_progress)
+        return
     sq = settings.get("sequence") or {}
     if sq:
         start = sq.get("start", start) if default("start") else start
@@ -460,6 +485,92 @@ def run_cmd(sequence_dir, method, out, max_frames, start, seed, config_file, thr
         _exit_now(130)
     finish(partial, out)
     _print_run_summary(res, out, gt, max_dt)
+
+
+def _expand_sequences(paths) -> list:
+    """The sequence folders named on the command line: each path as it is, except a folder that is
+    not a sequence itself but holds sequence folders (rgb.txt + depth.txt), which stands for them."""
+    from jaxvo.datasets import _is_sequence_dir, find_sequences, open_sequence
+
+    dirs = []
+    for p in paths:
+        inner = find_sequences(p) if p.is_dir() and not _is_sequence_dir(p) else []
+        if inner:
+            try:
+                open_sequence(p, max_frames=1)
+                inner = []          # a sequence of another layout (ICL-NUIM, Redwood): itself
+            except (DatasetError, ValueError):
+                pass
+        dirs += inner or [p]
+    return dirs
+
+
+def _run_many(seqs, config, seed, policy, out_dir, inputs, force, no_progress):
+    """Several sequences: one batch per image size (:func:`jaxvo.runner.run_sequences`), a
+    trajectory per sequence in ``out_dir`` and one summary line each."""
+    names = [seq.name for seq in seqs]
+    outs = [out_dir / (f"{n}.txt" if names.count(n) == 1 else f"{n}-{k}.txt") for k, n in enumerate(names)]
+    for seq, o in zip(seqs, outs):
+        if len(seq) < 2:
+            raise DatasetError(f"{seq.path}: only {len(seq)} frame(s) to use, need at least 2")
+        check_output(o, [s.path for s in seqs] + list(inputs), force, "--out-dir")
+        seq.check(1)
+    groups: dict = {}
+    for k, seq in enumerate(seqs):
+        groups.setdefault((seq.camera.width, seq.camera.height), []).append(k)
+    import jax
+    click.echo(f"jaxvo run: {len(seqs)} sequences in {len(groups)} batch(es) by image size, method "
+               f"{config.method}, {len(jax.devices())} device(s) ({_device()}, ...)", err=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise DatasetError(f"--out-dir {out_dir}: cannot create it ({e.strerror or e})") from None
+    pbar = None if no_progress else progress_bar(total=sum(len(s) - 1 for s in seqs), unit="frame",
+                                                 desc=config.method)
+    ctrl_c = _CtrlC()
+    results: dict = {}
+
+    def abandoned():
+        if pbar is not None:
+            pbar.close()
+        click.echo("interrupted (Ctrl-C); finished poses are kept in the .partial trajectories")
+    try:
+        for (w, h), ks in groups.items():
+            res = ctrl_c.run(lambda ks=ks: run_sequences([seqs[k] for k in ks], config, seed,
+                                                         [partial_path(outs[k]) for k in ks], pbar=pbar,
+                                                         policy=policy, on_pair=lambda s, step: ctrl_c.check()),
+                             abandoned)
+            results.update(zip(ks, res))
+            if any(r.interrupted for r in res):
+                break
+    except (DatasetError, ValueError, OSError) as e:
+        raise DatasetError(_one_line(e) + " (finished poses kept in the .partial trajectories)") from None
+    finally:
+        if pbar is not None:
+            pbar.close()
+    interrupted = any(r.interrupted for r in results.values()) or len(results) < len(seqs)
+    lines = []
+    for k, seq in enumerate(seqs):
+        if k not in results:
+            continue
+        r = results[k]
+        path = partial_path(outs[k]) if interrupted else outs[k]
+        if not interrupted:
+            finish(partial_path(outs[k]), outs[k])
+        line = (f"{seq.name}: {len(r.stamps)} frames, failures {r.failures}, inlier ratio "
+                f"{fmt(float(np.mean(r.inlier_ratio)) if r.pairs else float('nan'), 3)}, compile "
+                f"{fmt(r.compile_s, 1)} s, {fmt(r.fps, 2)} frames/s (batch), trajectory {path}")
+        gt = seq.groundtruth
+        if gt is not None:
+            errs = trajectory_errors(gt, r.stamps, r.poses, seq.max_dt)
+            if errs.get("rpe_1s") is not None:
+                line += f", RPE 1 s {errs['rpe_1s'].trans_drift.rmse:.4f} m/s"
+            if errs.get("ate") is not None:
+                line += f", ATE {errs['ate'].rmse:.4f} m"
+        lines.append(line)
+    click.echo("\n".join(lines))
+    if interrupted:
+        _exit_now(130)
 
 
 def _print_run_summary(res: RunResult, out, gt, max_dt):

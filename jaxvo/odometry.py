@@ -33,7 +33,7 @@ from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, num_levels_for
 from jaxvo.ransac import inliers, ransac_level
 from jaxvo.residuals import reference_points, residuals, select_points
-from jaxvo.solvers import irls, solve_pose, solve_pose_small
+from jaxvo.solvers import COMPILER_OPTIONS, irls, jit, solve_pose, solve_pose_small
 
 __all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "Odometry", "track", "Track",
            "TrackConfig", "TrackStep", "METHODS", "trace_count"]
@@ -168,7 +168,19 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
                           (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl))
 
 
-_estimate_jit = jax.jit(_estimate)
+_estimate_jit = jit(_estimate)
+_estimate_nested = jax.jit(_estimate)
+
+
+def _estimate_call(*args):
+    """``_estimate_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested jit with
+    compiler options) the plain jit, which then runs with the caller's program's options."""
+    try:
+        return _estimate_jit(*args)
+    except ValueError as e:
+        if "compiler_options" not in str(e):
+            raise
+        return _estimate_nested(*args)
 
 
 def _gated(ref_l, cur_l, cam, T, gate):
@@ -321,6 +333,14 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
+    args = _estimate_args(ref, cur, camera, config, key, init, weights)
+    # through the program exported into the cache folder when the CLI (jaxvo.cache.enable)
+    # switched that on: a second process then skips tracing; else plain jit
+    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, args, COMPILER_OPTIONS))
+
+
+def _estimate_args(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config], key, init, weights):
+    """The checked arguments of the compiled estimate for :func:`estimate_motion`'s inputs."""
     config = _checked_settings(config, camera)
     validate_pair(ref, cur, camera)
     h, w = ref.intensity.shape
@@ -333,12 +353,9 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
     T0 = jnp.eye(4, dtype=jnp.float32) if init is None else jnp.asarray(init, jnp.float32)
     if T0.shape != (4, 4):
         raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
-    args = (jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
+    return (jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
             jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
             camera, config, key, T0, _reference_weights(ref, weights))
-    # through the program exported into the cache folder when the CLI (jaxvo.cache.enable)
-    # switched that on: a second process then skips tracing; else plain jit
-    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_jit, args))
 
 
 def _reference_weights(ref: Frame, weights=None):
@@ -439,6 +456,18 @@ _VELOCITY_FRAMES = 10
 _VIEWS = 12
 
 
+class PairInputs(NamedTuple):
+    """The inputs of one estimate of :class:`Odometry` (from :meth:`Odometry.prepare`):
+    ``estimate_motion(ref, cur, camera, config, key, init=init, weights=weights)``.
+    T_ref_prev: (4, 4) float64, the previous frame's pose relative to the reference (host)."""
+    ref: Frame
+    cur: Frame
+    key: jnp.ndarray
+    init: np.ndarray
+    weights: Optional[jnp.ndarray]
+    T_ref_prev: np.ndarray
+
+
 class Odometry:
     """Streaming odometry: push frames one at a time, get each frame's pose at once.
 
@@ -489,6 +518,16 @@ class Odometry:
 
     def add(self, frame: Frame) -> TrackStep:
         """Add the next frame; returns its :class:`TrackStep` (pose, estimate, reference)."""
+        pair = self.prepare(frame)
+        if pair is None:
+            return TrackStep(0, -1, None, self._first, True, None)
+        return self.finish(pair, estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
+                                                 init=pair.init, weights=pair.weights))
+
+    def prepare(self, frame: Frame) -> Optional["PairInputs"]:
+        """The first half of :meth:`add`: record the frame and return the inputs of its estimate
+        (None for the first frame, whose pose is set). Pass the estimate of those inputs to
+        :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch)."""
         j = len(self.poses)
         self._frames[j] = frame
         if self.policy.segment:
@@ -497,13 +536,20 @@ class Odometry:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
-            return TrackStep(0, -1, None, self._first, True, None)
+            return None
+        T_world_ref = self._anchor.get(self._ref, self.poses[self._ref])
+        T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
+        weights = _trust(self._L, tuple(frame.depth.shape)) if self.policy.segment else None
+        return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
+                          geometry.inverse(T_ref_prev), weights, T_ref_prev)
+
+    def finish(self, pair: "PairInputs", est: MotionEstimate) -> TrackStep:
+        """The second half of :meth:`add`: chain the estimate of :meth:`prepare`'s inputs and
+        update the policy and segmentation; returns the frame's :class:`TrackStep`."""
+        j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.weights
         policy, ref, poses = self.policy, self._ref, self.poses
         T_world_ref = self._anchor.get(ref, poses[ref])
-        T_ref_prev = geometry.inverse(T_world_ref) @ poses[j - 1]
-        weights = _trust(self._L, tuple(frame.depth.shape)) if policy.segment else None
-        est, T, ratio, ratio_static, valid = self._estimate(ref, frame, jax.random.fold_in(self.key, j - 1),
-                                                            T_ref_prev, weights)
+        T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights)
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
@@ -539,9 +585,14 @@ class Odometry:
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
         (float64 T_ref_guess). Returns (estimate, T_cur_ref float64, inlier ratio, inlier ratio
         over trusted pixels, valid), valid also requiring a plausible step from the guess."""
-        policy = self.policy
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
+        return (est,) + self._judge(est, T_ref_prev, weights)
+
+    def _judge(self, est: MotionEstimate, T_ref_prev: np.ndarray, weights):
+        """(T_cur_ref float64, inlier ratio, inlier ratio over trusted pixels, valid) of an estimate
+        from the initial guess ``T_ref_prev``; valid also requires a plausible step from the guess."""
+        policy = self.policy
         if policy.segment:
             T, ratio, ok, (ratio_static, self._dynamic) = jax.device_get(   # one transfer
                 (est.T_cur_ref, est.inlier_ratio, est.valid, _trust_ratios(est.inlier_mask, est.valid_mask, weights)))
@@ -554,7 +605,7 @@ class Odometry:
             step = T @ T_ref_prev                          # T_cur_guess
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step
                      and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg))
-        return est, T, float(ratio), float(ratio_static), valid
+        return T, float(ratio), float(ratio_static), valid
 
     def _smoothed(self, new: int) -> np.ndarray:
         """Pose of ``new`` from a smooth fit to all estimates against its reference.

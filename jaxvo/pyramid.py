@@ -45,16 +45,29 @@ def sanitize_depth(depth, max_depth, min_depth=0.0):
     return jnp.where(ok, d, 0.0)
 
 
+def _quads(x):
+    """The four pixels of each 2x2 block of (h, w) ``x`` as four (h//2, w//2) strided views.
+
+    Strided slices and element-wise sums instead of a reshape and a mean over axes 1 and 3:
+    XLA on CPU reduces over those interleaved axes ~10x slower (1.4 vs 0.1 ms at 640x480).
+    """
+    h2, w2 = x.shape[0] // 2, x.shape[1] // 2
+    x = x[: 2 * h2, : 2 * w2]
+    return x[0::2, 0::2], x[0::2, 1::2], x[1::2, 0::2], x[1::2, 1::2]
+
+
+def _block_mean(x):
+    """2x2 block mean of (h, w) ``x`` -> (h//2, w//2)."""
+    a, b, c, d = _quads(x)
+    return 0.25 * ((a + b) + (c + d))
+
+
 def downsample(intensity, depth):
     """Halve (h, w) -> (h//2, w//2): 2x2 block mean of intensity, valid-only mean of depth."""
-    h, w = intensity.shape
-    h2, w2 = h // 2, w // 2
-    i = intensity[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean(axis=(1, 3))
-    d = depth[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2)
-    valid = (d > 0).astype(jnp.float32)
-    n = valid.sum(axis=(1, 3))
-    dsum = (d * valid).sum(axis=(1, 3))
-    return i, jnp.where(n > 0, dsum / jnp.maximum(n, 1.0), 0.0)
+    d = _quads(depth)
+    n = sum((q > 0).astype(jnp.float32) for q in d)
+    dsum = (d[0] + d[1]) + (d[2] + d[3])
+    return _block_mean(intensity), jnp.where(n > 0, dsum / jnp.maximum(n, 1.0), 0.0)
 
 
 def gradients(intensity):
@@ -95,8 +108,7 @@ def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0, weight=None)
     for l in range(num_levels):
         if l > 0:
             i, d = downsample(i, d)
-            h2, w2 = i.shape
-            wt = wt[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean(axis=(1, 3))
+            wt = _block_mean(wt)
         gu, gv = gradients(i)
         levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d), wt))
     return tuple(levels)

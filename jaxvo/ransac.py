@@ -33,7 +33,7 @@ from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
 from jaxvo.solvers import solve_pose_small
 
-__all__ = ["num_hypotheses", "inliers", "sample_patches", "score_pose", "fit_hypothesis", "RansacResult",
+__all__ = ["num_hypotheses", "inliers", "sampling_cdf", "sample_patches", "score_pose", "fit_hypothesis", "RansacResult",
            "ransac_level"]
 
 
@@ -53,18 +53,26 @@ def inliers(res: Residuals, thresh_lum, thresh_depth):
     return res.valid_depth & (jnp.abs(res.r_int) < thresh_lum) & (jnp.abs(res.r_depth) < thresh_depth)
 
 
-def sample_patches(key, level: Level, n: int, batch: int, radius: int):
+def sampling_cdf(level: Level, radius: int):
+    """(h*w,) int32 running count of the pixels :func:`sample_patches` may draw as patch centres:
+    valid depth, trusted as static (``level.weight`` >= 0.5), (2r+1)^2 neighbourhood inside the image."""
+    h, w = level.depth.shape
+    vv, uu = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    ok = (level.depth > 0) & (level.weight >= 0.5) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
+    return jnp.cumsum(ok.reshape(-1).astype(jnp.int32))
+
+
+def sample_patches(key, level: Level, n: int, batch: int, radius: int, cdf=None):
     """Draw ``batch`` samples of ``n`` patch centres uniformly among reference pixels with valid depth,
     trusted as static (``level.weight`` >= 0.5), whose (2r+1)^2 neighbourhood lies inside the image.
 
     Returns integer (u, v) coordinates of the patch pixels, each (batch, n * (2r+1)^2).
     Sampling is by inverse CDF over the valid-pixel count (O(h w) once, then
-    O(log(h w)) per draw), so it costs the same at every level.
+    O(log(h w)) per draw), so it costs the same at every level. ``cdf``: the level's
+    :func:`sampling_cdf`, when the caller draws several batches from the same level.
     """
     h, w = level.depth.shape
-    vv, uu = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    ok = (level.depth > 0) & (level.weight >= 0.5) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
-    cdf = jnp.cumsum(ok.reshape(-1).astype(jnp.int32))
+    cdf = sampling_cdf(level, radius) if cdf is None else cdf
     total = cdf[-1]
     draws = jax.random.randint(key, (batch, n), 0, jnp.maximum(total, 1))
     flat = jnp.searchsorted(cdf, draws, side="right")
@@ -137,7 +145,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
 
     def body(state):
         b, T_best, best, best_count, evaluated = state
-        pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius)
+        pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius, cdf)
         Ts = jax.vmap(hypothesis)(pu, pv)
         quality, counts = jax.vmap(score)(Ts)
         idx = b * batch_size + jnp.arange(batch_size)
@@ -150,6 +158,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         evaluated = evaluated + jnp.sum(idx < k)
         return b + 1, T_best, best, best_count, evaluated
 
+    cdf = sampling_cdf(ref_level, radius)  # once per level, not once per batch
     q0, c0 = score(T_init)
     state = (jnp.int32(0), T_init, q0, c0, jnp.int32(0))
     _, T_best, _, best_count, evaluated = jax.lax.while_loop(cond, body, state)

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera, backproject
+from jaxvo.geometry import transform_points
 from jaxvo.pyramid import Level
 
 __all__ = ["RefPoints", "Residuals", "reference_points", "select_points", "gather_points", "warp", "sample_bilinear",
@@ -118,7 +119,7 @@ def warp(T_cur_ref, points, camera: Camera):
 
     Returns (P' (N, 3), u', v', in_front (N,) bool).
     """
-    Pc = points @ T_cur_ref[:3, :3].T + T_cur_ref[:3, 3]
+    Pc = transform_points(T_cur_ref, points)
     z = Pc[:, 2]
     in_front = z > 1e-3
     zs = jnp.where(in_front, z, 1.0)

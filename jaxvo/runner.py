@@ -21,7 +21,7 @@ from jaxvo.camera import PRESETS, Camera
 from jaxvo.datasets import DatasetError, TumSequence, open_sequence
 from jaxvo.mapping import moving_mask
 
-__all__ = ["RunResult", "run_sequence", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
 
 
 def read_run_settings(path) -> dict:
@@ -162,6 +162,72 @@ class RunResult:
         return int(np.sum(~self.valid))
 
 
+class _Recorder:
+    """What a run keeps of one sequence: the trajectory written as it grows (after the ``#``
+    header of :func:`run_header`), optional outlier masks, poses, inlier ratios and timings.
+    ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult."""
+
+    def __init__(self, seq: TumSequence, config, seed: int, out=None, save_masks=None,
+                 on_pair: Optional[Callable] = None, pbar=None, policy=None):
+        from jaxvo.config import TrackConfig
+        from jaxvo.trajectory import HEADER, TrajectoryWriter
+
+        self.seq, self.method, self.on_pair, self.pbar = seq, config.method, on_pair, pbar
+        self.stamps = np.asarray(seq.timestamps, np.float64)
+        self.mask_dir = None
+        if save_masks is not None:
+            self.mask_dir = Path(save_masks)
+            try:
+                self.mask_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise DatasetError(f"{self.mask_dir}: cannot create mask folder ({e.strerror or e})") from None
+        header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
+        self.writer = TrajectoryWriter(out, header=header) if out is not None else None
+        self.poses = [np.eye(4)]
+        self.ratios: List[float] = []
+        self.valids: List[bool] = []
+        self.times: List[float] = []
+        self.t0 = time.perf_counter()
+
+    def open(self) -> None:
+        if self.writer is not None:
+            self.writer.open()
+            self.writer.write_first(self.stamps[0])
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+    def step(self, step) -> None:
+        import cv2
+
+        i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
+        self.ratios.append(float(est.inlier_ratio))
+        self.valids.append(bool(step.valid))
+        self.poses.append(np.asarray(pose, np.float64))
+        if self.writer is not None:
+            self.writer.write(self.stamps[i + 1], pose)
+        if self.mask_dir is not None:
+            m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
+            p = self.mask_dir / f"{stamp_name(self.stamps[ref])}.png"
+            if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
+                raise OSError(f"{p}: could not write mask image")
+        if self.on_pair is not None:
+            self.on_pair(step)
+        self.times.append(time.perf_counter())
+        if self.pbar is not None:
+            self.pbar.update(1)
+            self.pbar.set_postfix(inliers=f"{self.ratios[-1]:.2f}", refresh=False)
+
+    def result(self, interrupted: bool) -> "RunResult":
+        times, n = self.times, len(self.poses)
+        compile_s = (times[0] - self.t0) if times else float("nan")
+        fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] \
+            else float("nan")
+        return RunResult(self.method, self.stamps[:n].copy(), np.stack(self.poses), np.asarray(self.ratios),
+                         np.asarray(self.valids, bool), compile_s, fps, time.perf_counter() - self.t0, interrupted)
+
+
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
     """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
@@ -175,69 +241,57 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
     :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
     run early (``interrupted=True``) keeping everything written so far.
     """
-    import cv2
     import jax
 
     from jaxvo.odometry import track
-    from jaxvo.trajectory import TrajectoryWriter
 
-    stamps = np.asarray(seq.timestamps, np.float64)
-    W, H = seq.camera.width, seq.camera.height
-    mask_dir = None
-    if save_masks is not None:
-        mask_dir = Path(save_masks)
-        try:
-            mask_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise DatasetError(f"{mask_dir}: cannot create mask folder ({e.strerror or e})") from None
-    from jaxvo.config import TrackConfig
-    from jaxvo.trajectory import HEADER
-
-    header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
-    writer = TrajectoryWriter(out, header=header) if out is not None else None
-    poses = [np.eye(4)]
-    ratios: List[float] = []
-    valids: List[bool] = []
-    times: List[float] = []
-    t0 = time.perf_counter()
-
-    def callback(step):
-        i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
-        ratios.append(float(est.inlier_ratio))
-        valids.append(bool(step.valid))
-        poses.append(np.asarray(pose, np.float64))
-        if writer is not None:
-            writer.write(stamps[i + 1], pose)
-        if mask_dir is not None:
-            m = moving_mask(est, W, H, step.static_mask)
-            p = mask_dir / f"{stamp_name(stamps[ref])}.png"
-            if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
-                raise OSError(f"{p}: could not write mask image")
-        if on_pair is not None:
-            on_pair(step)
-        times.append(time.perf_counter())
-        if pbar is not None:
-            pbar.update(1)
-            pbar.set_postfix(inliers=f"{ratios[-1]:.2f}", refresh=False)
-
+    rec = _Recorder(seq, config, seed, out, save_masks, on_pair, pbar, policy)
     interrupted = False
     frames_it = seq.prefetch(2)
     frames = (f for _, f in frames_it)
     try:
-        if writer is not None:
-            writer.open()
-            writer.write_first(stamps[0])
-        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=callback, policy=policy)
+        rec.open()
+        track(frames, seq.camera, config, jax.random.key(int(seed)), callback=rec.step, policy=policy)
     except KeyboardInterrupt:
         interrupted = True
     finally:
         frames.close()
         frames_it.close()
-        if writer is not None:
-            writer.close()
-    t_end = time.perf_counter()
-    n = len(poses)
-    compile_s = (times[0] - t0) if times else float("nan")
-    fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else float("nan")
-    return RunResult(config.method, stamps[:n].copy(), np.stack(poses), np.asarray(ratios),
-                     np.asarray(valids, bool), compile_s, fps, t_end - t0, interrupted)
+        rec.close()
+    return rec.result(interrupted)
+
+
+def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_pair: Optional[Callable] = None,
+                  pbar=None, policy=None) -> List[RunResult]:
+    """:func:`run_sequence` for several sequences of one image size as one batch
+    (:func:`jaxvo.batch.track_batch`: their estimates vmapped together, in lockstep, over the
+    available devices). Each sequence uses the key ``jax.random.key(seed)`` as it would alone and
+    writes its trajectory to its entry of ``outs`` (None = none). ``on_pair(s, step)`` is called
+    with sequence index and :class:`jaxvo.odometry.TrackStep`. Returns one RunResult per sequence.
+    """
+    import functools
+
+    import jax
+
+    from jaxvo.batch import track_batch
+
+    outs = [None] * len(seqs) if outs is None else list(outs)
+    recs = [_Recorder(seq, config, seed, out, None, None if on_pair is None else functools.partial(on_pair, s),
+                      pbar, policy) for s, (seq, out) in enumerate(zip(seqs, outs))]
+    interrupted = False
+    iters = [seq.prefetch(2) for seq in seqs]
+    frames = [(f for _, f in it) for it in iters]
+    try:
+        for rec in recs:
+            rec.open()
+        track_batch(frames, [seq.camera for seq in seqs], config, [jax.random.key(int(seed))] * len(seqs),
+                    policy, callbacks=[rec.step for rec in recs])
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        for f, it in zip(frames, iters):
+            f.close()
+            it.close()
+        for rec in recs:
+            rec.close()
+    return [rec.result(interrupted) for rec in recs]

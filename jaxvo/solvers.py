@@ -10,6 +10,12 @@ weight of 0 removes a pixel without changing any shape. The Jacobian is
 materialised analytically (:func:`jaxvo.residuals.photometric_terms`), not by
 autodiff through the image sampler.
 
+Both solvers form the normal equations in one pass over the pixels (:func:`_system`: warp,
+sample, accumulate [J r]^T W [J r]); jaxopt is handed the problem in its equivalent 7-residual
+square-root form (:func:`_square_root_form`), so its iterates are those of the N-residual
+problem while its own work is on 7 x 6 arrays. Programs that run the solvers are compiled with
+:data:`COMPILER_OPTIONS` (:func:`jit`).
+
 The parameters jaxopt sees are a left increment ``delta`` (twist (w, v)) of
 the pose being refined: ``T_cur_ref = exp(hat(delta)) @ T0``, starting at
 ``delta = 0``, so the Jacobian at each iterate is the standard one.
@@ -27,10 +33,24 @@ from jaxvo.camera import Camera
 from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, photometric_terms, residuals, rgbd_terms
 
-__all__ = ["Solution", "solve_pose", "solve_pose_small", "robust_scale", "huber_weights", "irls"]
+__all__ = ["Solution", "solve_pose", "solve_pose_small", "robust_scale", "huber_weights", "irls", "COMPILER_OPTIONS",
+           "jit"]
 
 # Consistency constant of the MAD for a Gaussian: sigma = 1.4826 * median(|r|).
 MAD_TO_SIGMA = 1.4826
+
+
+# XLA options for every program that runs these solvers (``jit`` below). Loop-invariant code
+# motion is off: it hoists the invariant parts of each of the evaluations that jaxopt's update makes
+# at one point (residual, auxiliary output, Jacobian) into separate loop-carried values, after which
+# XLA can no longer merge the evaluations into one pass over the pixels (measured: the consensus
+# refinement 2-4x slower with it on, the results bitwise the same).
+COMPILER_OPTIONS = {"xla_disable_hlo_passes": "while-loop-invariant-code-motion"}
+
+
+def jit(fun, **kwargs):
+    """``jax.jit(fun, **kwargs)`` compiled with :data:`COMPILER_OPTIONS`."""
+    return jax.jit(fun, compiler_options=COMPILER_OPTIONS, **kwargs)
 
 
 class Solution(NamedTuple):
@@ -56,25 +76,68 @@ def _terms(delta, T0, ref, cur, camera, depth_weight):
     return r.reshape(-1), J.reshape(-1, 6)
 
 
-def _weighted_residual_fun(T0, ref, cur, camera, sqrt_w, depth_weight):
-    """The weighted residual ``delta -> sqrt_w * r(exp(delta) @ T0)`` as a function of the twist alone,
-    whose derivative is the analytic Jacobian (a ``jax.custom_jvp``).
+def _system(delta, T0, ref, cur, camera, w, depth_weight):
+    """The weighted normal equations at exp(delta) @ T0 in one pass over the pixels: the (7, 7)
+    matrix M = [J r]^T diag(w) [J r], i.e. M[:6, :6] = J^T W J, M[:6, 6] = J^T W r and
+    M[6, 6] = r^T W r, with w (M,) per residual (M = N or 2N, see :func:`_terms`)."""
+    r, J = _terms(delta, T0, ref, cur, camera, depth_weight)
+    A = jnp.concatenate([J, r[:, None]], 1)
+    return (A * w[:, None]).T @ A
 
-    jaxopt's LevenbergMarquardt with ``materialize_jac=True`` forms the Jacobian by ``jax.jacfwd``
-    of the residual function (jaxopt 0.8.x ignores ``jac_fun`` on that path), which here yields
-    the custom JVP applied to the six basis twists: the analytic Jacobian, not autodiff through
-    the image sampler. The rule computes residual and Jacobian together, so each LM step warps
-    and gathers once.
+
+# Relative diagonal loading of J^T W J before its Cholesky factor is taken (1e-6 of the largest
+# diagonal entry, the size of LM's initial damping): keeps the factor finite in float32 when the
+# pose is poorly constrained (or no pixel is valid), and changes a step by about that fraction.
+_JITTER = 1e-6
+
+
+def _loaded(H):
+    """J^T W J (6, 6) with the diagonal loading that both Levenberg-Marquardt solvers factor."""
+    return H + (_JITTER * jnp.max(jnp.diag(H)) + 1e-30) * jnp.eye(6, dtype=H.dtype)
+
+
+def _square_root_form(M):
+    """A 7-residual least-squares problem equivalent to the normal equations M (see :func:`_system`)
+    at one linearisation point: returns (rho (7,), R (7, 6)) with R^T R = J^T W J (loaded, see
+    :data:`_JITTER`), R^T rho = J^T W r and |rho|^2 = r^T W r, where R is the upper Cholesky factor
+    over a row of zeros and rho = (R^-T J^T W r, sqrt(r^T W r - |R^-T J^T W r|^2)).
+
+    Cost, gradient and Gauss-Newton matrix are those of the N-residual problem, so
+    Levenberg-Marquardt on (rho, R) takes exactly the steps it takes on (sqrt(w) r, sqrt(w) J).
+    """
+    H, g, c = M[:6, :6], M[:6, 6], M[6, 6]
+    L = jnp.linalg.cholesky(_loaded(0.5 * (H + H.T)))
+    y = jax.scipy.linalg.solve_triangular(L, g, lower=True)
+    rho = jnp.concatenate([y, jnp.sqrt(jnp.maximum(c - y @ y, 0.0))[None]])
+    return rho, jnp.concatenate([L.T, jnp.zeros((1, 6), L.dtype)])
+
+
+def _square_root_fun(T0, ref, cur, camera, w, depth_weight):
+    """The residual function jaxopt minimises: ``delta -> (rho(delta), M(delta))`` (the 7-residual
+    square-root form of :func:`_square_root_form` and, as jaxopt's auxiliary output, the normal
+    equations M of :func:`_system`), for the left increment ``delta`` of ``T0``.
+
+    Its derivative is a ``jax.custom_jvp``: the Cholesky factor R (analytic, from the analytic
+    Jacobian of :mod:`jaxvo.residuals`, never autodiff through the image sampler). jaxopt's
+    LevenbergMarquardt with ``materialize_jac=True`` forms the Jacobian by ``jax.jacfwd``
+    (jaxopt 0.8.x ignores ``jac_fun`` on that path), which yields R. Handing jaxopt the
+    problem in this form instead of the N (weighted) residuals and their N x 6 Jacobian gives the
+    same iterates, while every evaluation is one fused pass over the pixels (warp, sample,
+    accumulate M) and jaxopt's own work is on 7 x 6 arrays; jaxopt evaluates the residual
+    function and its Jacobian at the same point within an update, and XLA computes that pass
+    once for both.
     """
     @jax.custom_jvp
     def fun(delta):
-        return sqrt_w * _terms(delta, T0, ref, cur, camera, depth_weight)[0]
+        M = _system(delta, T0, ref, cur, camera, w, depth_weight)
+        return _square_root_form(M)[0], M
 
     @fun.defjvp
     def fun_jvp(primals, tangents):
         (delta,), (t,) = primals, tangents
-        r, J = _terms(delta, T0, ref, cur, camera, depth_weight)
-        return sqrt_w * r, (sqrt_w[:, None] * J) @ t
+        M = _system(delta, T0, ref, cur, camera, w, depth_weight)
+        rho, R = _square_root_form(M)
+        return (rho, M), (R @ t, jnp.zeros_like(M))
 
     return fun
 
@@ -123,23 +186,32 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
       xtol: stop once an LM step is shorter than this (twist norm: radians and metres mixed;
         1e-5 is 0.01 mm / 0.0006 deg).
     """
-    weights = jnp.maximum(weights, 0.0).astype(jnp.float32)
-    if depth_weight is not None:
-        weights = jnp.broadcast_to(weights.reshape(weights.shape[0], -1), (weights.shape[0], 2)).reshape(-1)
-    # Normalise the cost by the total weight: the optimum is unchanged, and the
-    # Hessian then has a size-independent scale, so that LM's damping (capped at
-    # 2^32 by jaxopt) can still shrink a rejected step until the step test stops it.
-    total = jnp.maximum(jnp.sum(weights), 1.0)
-    sqrt_w = jnp.sqrt(weights / total)
+    w, total = _normalised_weights(weights, depth_weight)
     solver = jaxopt.LevenbergMarquardt(
-        residual_fun=_weighted_residual_fun(T0, ref, cur, camera, sqrt_w, depth_weight), materialize_jac=True,
-        solver="cholesky", maxiter=maxiter, damping_parameter=1e-6, implicit_diff=False, jit=True)
+        residual_fun=_square_root_fun(T0, ref, cur, camera, w, depth_weight), materialize_jac=True,
+        has_aux=True, solver="cholesky", maxiter=maxiter, damping_parameter=1e-6, implicit_diff=False, jit=True)
     params, state = _run_lm(solver, jnp.zeros(6, jnp.float32), maxiter, xtol)
     # guard: a degenerate system (e.g. no valid pixel) must not poison the pose
     ok = jnp.all(jnp.isfinite(params))
     delta = jnp.where(ok, params, 0.0)
-    return Solution(geometry.exp(delta) @ T0, state.iter_num.astype(jnp.int32), state.jtj * total,
-                    state.value * total)
+    M = state.aux  # the normal equations at the last accepted iterate
+    return Solution(geometry.exp(delta) @ T0, state.iter_num.astype(jnp.int32), M[:6, :6] * total,
+                    0.5 * M[6, 6] * total)
+
+
+def _normalised_weights(weights, depth_weight):
+    """(w (M,), total): per-residual weights from per-point ``weights`` ((N,) or (N, 2)), negative
+    ones 0, divided by their sum ``total`` (at least 1).
+
+    The normalisation leaves the optimum unchanged and gives the Hessian a size-independent
+    scale, so that LM's damping (capped at 2^32 by jaxopt) can still shrink a rejected step
+    until the step test stops it.
+    """
+    weights = jnp.maximum(weights, 0.0).astype(jnp.float32)
+    if depth_weight is not None:
+        weights = jnp.broadcast_to(weights.reshape(weights.shape[0], -1), (weights.shape[0], 2)).reshape(-1)
+    total = jnp.maximum(jnp.sum(weights), 1.0)
+    return weights / total, total
 
 
 def _cholesky_solve6(A, b):
@@ -177,41 +249,40 @@ def solve_pose_small(T0, ref: RefPoints, cur: Level, camera: Camera, weights, ma
     jaxopt's program and is cheap under ``jax.vmap``; same arguments and result as
     :func:`solve_pose`.
     """
-    weights = jnp.maximum(weights, 0.0).astype(jnp.float32)
-    if depth_weight is not None:
-        weights = jnp.broadcast_to(weights.reshape(weights.shape[0], -1), (weights.shape[0], 2)).reshape(-1)
-    total = jnp.maximum(jnp.sum(weights), 1.0)
-    sqrt_w = jnp.sqrt(weights / total)
+    w, total = _normalised_weights(weights, depth_weight)
 
     def system(delta):
-        r, J = _terms(delta, T0, ref, cur, camera, depth_weight)
-        r, J = sqrt_w * r, sqrt_w[:, None] * J
-        return J.T @ J, J.T @ r, 0.5 * jnp.sum(r * r)
+        return _system(delta, T0, ref, cur, camera, w, depth_weight)
+
+    def normal(M):  # the loaded Gauss-Newton matrix, gradient and cost that jaxopt sees
+        return _loaded(0.5 * (M[:6, :6] + M[:6, :6].T)), M[:6, 6], 0.5 * M[6, 6]
 
     def cond(state):
-        it, _, _, _, _, _, inc, step_norm = state
+        it, _, _, _, inc, step_norm = state
         return (it < maxiter) & (step_norm > xtol) & (inc < 8)
 
     def body(state):
-        it, delta, H, g, loss, mu, inc, _ = state
+        it, delta, M, mu, inc, _ = state
+        H, g, loss = normal(M)
         step = -_cholesky_solve6(H + mu * jnp.eye(6, dtype=H.dtype), g)
-        H2, g2, loss2 = system(delta + step)
-        gain = (loss - loss2) / (0.5 * step @ (mu * step - g))
+        M2 = system(delta + step)
+        gain = (loss - 0.5 * M2[6, 6]) / (0.5 * step @ (mu * step - g))
         ok = gain > 0
         big = jnp.float32(2.0 ** 32)
         delta = jnp.where(ok, delta + step, delta)
-        H, g, loss = jnp.where(ok, H2, H), jnp.where(ok, g2, g), jnp.where(ok, loss2, loss)
+        M = jnp.where(ok, M2, M)
         mu = jnp.where(ok, mu * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3), jnp.minimum(mu * inc, big))
         inc = jnp.where(ok, 2.0, jnp.minimum(2 * inc, big))
-        return it + 1, delta, H, g, loss, mu, inc, jnp.linalg.norm(step)
+        return it + 1, delta, M, mu, inc, jnp.linalg.norm(step)
 
     delta0 = jnp.zeros(6, jnp.float32)
-    H, g, loss = system(delta0)
-    state = (jnp.int32(0), delta0, H, g, loss, 1e-6 * jnp.max(jnp.diag(H)), jnp.float32(2.0), jnp.float32(jnp.inf))
-    it, delta, H, _, loss, _, _, _ = jax.lax.while_loop(cond, body, state)
+    M = system(delta0)
+    mu0 = 1e-6 * jnp.max(jnp.diag(normal(M)[0]))
+    state = (jnp.int32(0), delta0, M, mu0, jnp.float32(2.0), jnp.float32(jnp.inf))
+    it, delta, M, _, _, _ = jax.lax.while_loop(cond, body, state)
     ok = jnp.all(jnp.isfinite(delta))
     delta = jnp.where(ok, delta, 0.0)
-    return Solution(geometry.exp(delta) @ T0, it, H * total, loss * total)
+    return Solution(geometry.exp(delta) @ T0, it, M[:6, :6] * total, 0.5 * M[6, 6] * total)
 
 
 def robust_scale(r, valid, max_abs: float = 256.0, bins: int = 1024):

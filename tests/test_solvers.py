@@ -226,16 +226,56 @@ def test_solvers_use_only_the_public_jaxopt_api():
 
 
 def test_lm_uses_the_analytic_jacobian(pair):
-    """The residual function jaxopt differentiates yields the analytic Jacobian of
-    jaxvo.residuals.photometric_terms (a custom JVP), not autodiff through the sampler."""
+    """The residual function jaxopt differentiates is the square-root form of the weighted
+    problem built from the analytic Jacobian of jaxvo.residuals.photometric_terms (a custom
+    JVP), not autodiff through the sampler: its Jacobian R and residual rho give the same
+    Gauss-Newton matrix, gradient and cost as the N weighted residuals."""
     from jaxvo.residuals import photometric_terms
-    from jaxvo.solvers import _weighted_residual_fun
+    from jaxvo.solvers import _JITTER, _square_root_fun
 
     ref, cur, pts = pair
     T0 = jnp.asarray(G.exp(0.5 * XI_TRUE), jnp.float32)
-    sqrt_w = jnp.full(pts.u.shape, 0.5, jnp.float32)
-    fun = _weighted_residual_fun(T0, pts, cur, CAM, sqrt_w, None)
-    J = jax.jit(jax.jacfwd(fun))(jnp.zeros(6, jnp.float32))
-    r, J_ref, _ = photometric_terms(T0, pts, cur, CAM)
-    np.testing.assert_allclose(np.asarray(J), 0.5 * np.asarray(J_ref), rtol=1e-5, atol=1e-4)
-    np.testing.assert_allclose(np.asarray(fun(jnp.zeros(6))), 0.5 * np.asarray(r), rtol=1e-5, atol=1e-4)
+    w = jnp.full(pts.u.shape, 0.25, jnp.float32)
+    fun = _square_root_fun(T0, pts, cur, CAM, w, None)
+    R = np.asarray(jax.jit(jax.jacfwd(lambda d: fun(d)[0]))(jnp.zeros(6, jnp.float32)), np.float64)
+    rho, M = [np.asarray(x, np.float64) for x in jax.jit(fun)(jnp.zeros(6, jnp.float32))]
+    r, J, _ = [np.asarray(x, np.float64) for x in photometric_terms(T0, pts, cur, CAM)]
+    H, g, c = 0.25 * J.T @ J, 0.25 * J.T @ r, 0.25 * r @ r
+    np.testing.assert_allclose(M[:6, :6], H, rtol=1e-4, atol=1e-5 * np.abs(H).max())
+    np.testing.assert_allclose(M[:6, 6], g, rtol=1e-4, atol=1e-5 * np.abs(g).max())
+    assert R.shape == (7, 6) and np.all(R[6] == 0)
+    loaded = H + _JITTER * np.abs(np.diag(H)).max() * np.eye(6)
+    np.testing.assert_allclose(R.T @ R, loaded, rtol=1e-3, atol=1e-4 * np.abs(H).max())
+    np.testing.assert_allclose(R.T @ rho, g, rtol=1e-3, atol=1e-4 * np.abs(g).max())
+    assert rho @ rho == pytest.approx(c, rel=1e-4)
+
+
+def test_consensus_refinement_evaluates_once_per_iteration(pair):
+    """With :data:`jaxvo.solvers.COMPILER_OPTIONS` XLA merges the evaluations jaxopt's update
+    makes at one point (residual, auxiliary output, Jacobian): the LM loop's body samples the
+    current image once per iteration (5 gathers: 4 bilinear corners, 1 depth for the
+    occlusion test), not three times."""
+    import re
+
+    from jaxvo.solvers import jit
+
+    ref, cur, pts = pair
+    text = jit(lambda T, w: solve_pose(T, pts, cur, CAM, w, 6)).lower(jnp.eye(4), jnp.ones(pts.u.shape)).compile() \
+        .as_text()
+    comps, name = {}, None
+    for line in text.splitlines():
+        m = re.match(r"^(?:ENTRY )?%?([\w.\-]+) .*\{$", line)
+        if m:
+            name = m.group(1)
+            comps[name] = []
+        elif name:
+            comps[name].append(line)
+    gathering = {n for n, lines in comps.items() if any(" gather(" in ln for ln in lines)}
+    bodies = [m for lines in comps.values() for ln in lines for m in re.findall(r"while\(.*body=%([\w.\-]+)", ln)]
+    assert len(bodies) == 1
+
+    def image_gathers(body):
+        calls = [re.search(r"calls=%([\w.\-]+)", ln) for ln in comps[body]]
+        return sum(1 for ln, c in zip(comps[body], calls) if c and c.group(1) in gathering
+                   and re.search(r"= f32\[\d+,1(,3)?\]", ln))
+    assert image_gathers(bodies[0]) == 5
