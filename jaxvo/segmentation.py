@@ -38,6 +38,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxvo import geometry
 from jaxvo.camera import Camera, backproject
 from jaxvo.pyramid import downsample, sanitize_depth
 
@@ -93,7 +94,7 @@ def _transfer(ref_depth, T_view_ref, camera: Camera):
     h, w = ref_depth.shape
     vv, uu = jnp.meshgrid(jnp.arange(h, dtype=jnp.float32), jnp.arange(w, dtype=jnp.float32), indexing="ij")
     P = backproject(camera, uu, vv, ref_depth).reshape(-1, 3)
-    Pv = P @ T_view_ref[:3, :3].T + T_view_ref[:3, 3]
+    Pv = geometry.transform_points(T_view_ref, P)
     z = Pv[:, 2]
     zs = jnp.where(z > 0.1, z, 1.0)
     u = jnp.round(camera.fx * Pv[:, 0] / zs + camera.cx)
