@@ -263,7 +263,7 @@ class TrackConfig(NamedTuple):
       next reference (frame to frame: on a static scene the shortest baseline is the most
       accurate); the keyframes take over as soon as the map sees something move. 0:
       keyframes always. The map marks about 1 % of a static scene's pixels (depth edges)
-      dynamic, hence 3 %: fr2_desk 0.0184 m/s (0.0190 at 1 %, 0.0179 frame to frame), Bonn
+      dynamic, hence 3 %: fr2_desk 0.0185 m/s (0.0190 at 1 %, 0.0179 frame to frame), Bonn
       crowd unchanged (0.073 against 0.070 m/s, seeds 0-2).
     smooth: the pose of a new reference comes from a smooth fit (twists quadratic in time)
       to all the estimates against its own reference, not from its estimate alone.
