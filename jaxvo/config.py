@@ -260,11 +260,11 @@ class TrackConfig(NamedTuple):
       reference move.
     calm_fraction: with the segmentation, while the reference has fewer than this fraction
       of its valid pixels marked dynamic and the estimate succeeded, every frame becomes the
-      next reference (frame to frame: on a static scene the shortest baseline is the most
-      accurate); the keyframes take over as soon as the map sees something move. 0:
-      keyframes always. The map marks about 1 % of a static scene's pixels (depth edges)
-      dynamic, hence 3 %: fr2_desk 0.0185 m/s (0.0190 at 1 %, 0.0179 frame to frame), Bonn
-      crowd unchanged (0.073 against 0.070 m/s, seeds 0-2).
+      next reference and is estimated without the map's weights (frame to frame, as the
+      paper: on a static scene the shortest baseline is the most accurate, and the ~1 % of
+      pixels the map marks dynamic there are depth edges); the keyframes and the weights take
+      over as soon as the map sees more move. 0: keyframes always. fr2_desk: 0.0179 m/s, as
+      frame to frame (0.0185 with the weights, 0.0190 at 1 %); Bonn crowd unchanged.
     smooth: the pose of a new reference comes from a smooth fit (twists quadratic in time)
       to all the estimates against its own reference, not from its estimate alone.
     history: how many earlier frames (at offsets 2, 4, 8, ...) vote on a new reference's
