@@ -187,12 +187,15 @@ def _gated(ref_l, cur_l, cam, T, gate):
     """``ref_l`` with the weight of pixels whose depth residual at T exceeds ``gate`` set to 0
     (RANSAC draws its samples among weight >= 0.5); unchanged if gate <= 0 or if fewer than
     10 % of the trusted pixels would remain."""
-    res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
-    far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
-    trusted = (ref_l.depth > 0) & (ref_l.weight >= 0.5)
-    kept = jnp.sum(trusted & ~far)
-    apply = (gate > 0) & (kept >= 0.1 * jnp.sum(trusted))
-    return ref_l._replace(weight=jnp.where(apply & far, 0.0, ref_l.weight))
+    def gate_weights(weight):
+        res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
+        far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
+        trusted = (ref_l.depth > 0) & (weight >= 0.5)
+        apply = jnp.sum(trusted & ~far) >= 0.1 * jnp.sum(trusted)
+        return jnp.where(apply & far, 0.0, weight)
+
+    # off by default: no dense residual pass per level then (a cond, as gate may be traced)
+    return ref_l._replace(weight=jax.lax.cond(gate > 0, gate_weights, lambda w: w, ref_l.weight))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):
