@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo import aot, geometry, segmentation
+from jaxvo import aot, brightness, geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
@@ -60,6 +60,9 @@ class MotionEstimate(NamedTuple):
       depth is more than thresh_depth in front of the warped reference point: something
       came between, so the reference pixel is hidden, not moving (see
       :func:`jaxvo.mapping.moving_mask`). None where an estimate was made without it.
+    brightness: float32 scalar, the luminance offset of the exposure change fitted at the
+      finest level, I_cur ~ I_ref + brightness (0-255 units; see :mod:`jaxvo.brightness`;
+      0 with ``Config.brightness = "none"``). None where an estimate was made without it.
     """
     T_cur_ref: jnp.ndarray
     xi: jnp.ndarray
@@ -72,6 +75,7 @@ class MotionEstimate(NamedTuple):
     information: jnp.ndarray
     residual_rms: jnp.ndarray
     occluded_mask: Optional[jnp.ndarray] = None
+    brightness: Optional[jnp.ndarray] = None
 
 
 _TRACES = {"count": 0}
@@ -90,6 +94,12 @@ def _block(config: Config, level: int) -> int:
     return int(config.blocks[level]) if level < len(config.blocks) else 1
 
 
+def _score_stride(level, config: Config) -> int:
+    """Stride of the regular subgrid of at most about ``max_score_pixels`` pixels of a level."""
+    hh, ww = level.depth.shape
+    return max(1, int(np.ceil(np.sqrt(hh * ww / config.max_score_pixels))))
+
+
 def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init, ref_weight):
     _TRACES["count"] += 1
     h, w = ref_int.shape
@@ -101,9 +111,14 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     hyps = [jnp.int32(0)] * L
     iters = [jnp.int32(0)] * L
     sol = None
+    offset = jnp.float32(0.0)
     for level in range(L - 1, config.finest_level - 1, -1):
         cam = camera.at_level(level)
         ref_l, cur_l = ref_pyr[level], cur_pyr[level]
+        if config.brightness == "offset":   # exposure changes: fitted at the level's starting pose
+            offset = brightness.fit_offset(T, reference_points(ref_l, cam, _score_stride(ref_l, config)), cur_l,
+                                           cam, config.thresh_lum, config.thresh_depth)
+            ref_l = brightness.apply(ref_l, offset)
         pts = select_points(ref_l, cam, _block(config, level))
         ones = pts.weight
         if config.method == "classic":
@@ -114,8 +129,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
             iters[level] = sol.iterations
         else:
-            hh, ww = ref_l.depth.shape
-            score_stride = max(1, int(np.ceil(np.sqrt(hh * ww / config.max_score_pixels))))
+            score_stride = _score_stride(ref_l, config)
             if config.score_selection == "gradient":
                 score_pts = select_points(ref_l, cam, score_stride)
             else:
@@ -150,9 +164,7 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
         T = sol.T
 
     # per-pixel masks and statistics at the finest level processed, all pixels
-    level = config.finest_level
-    cam = camera.at_level(level)
-    ref_l, cur_l = ref_pyr[level], cur_pyr[level]
+    # ref_l, cur_l: the finest level processed, ref_l with the brightness fitted there
     dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
     hl, wl = ref_l.depth.shape
     n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
@@ -165,7 +177,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
                           jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var),
-                          (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl))
+                          (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl),
+                          offset)
 
 
 _estimate_jit = jit(_estimate)
@@ -260,10 +273,11 @@ def _trusted(s: TrustStats, config: Config):
 
 
 @jax.jit
-def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info):
+def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info, offset):
     level = config.finest_level
     L = _levels(config, ref_int.shape[1], ref_int.shape[0])
     ref_l = build_pyramid(ref_int, ref_depth, L, config.max_depth)[level]
+    ref_l = brightness.apply(ref_l, offset)
     cur_l = build_pyramid(cur_int, cur_depth, L, config.max_depth)[level]
     dense, res, inl = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
     s = _trust_stats(ref_l, res, inl, dense, info, T, config)
@@ -276,9 +290,10 @@ def explain_validity(ref: Frame, cur: Frame, camera: Camera, estimate: "MotionEs
     returns ``(TrustStats, valid)``, recomputed exactly as the estimator does at the end."""
     config = _checked_settings(config, camera)
     validate_pair(ref, cur, camera)
+    offset = 0.0 if estimate.brightness is None else estimate.brightness
     return _explain(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
                     jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
-                    camera, config, estimate.T_cur_ref, estimate.information)
+                    camera, config, estimate.T_cur_ref, estimate.information, jnp.float32(offset))
 
 
 def _is_concrete(x) -> bool:

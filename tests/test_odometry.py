@@ -319,3 +319,32 @@ def test_sample_gate_drops_pixels_something_stepped_in_front_of():
     crowd = np.ones((h, w), bool)
     crowd[:, :10] = False                                   # ~6 % of the wall still in view
     assert (gated(crowd, 0.2) == 1).all()
+
+
+def test_brightness_offset_recovers_an_exposure_change(static_pair):
+    """The current frame 40 grey levels brighter (auto exposure): at the true pose every pixel
+    fails |luminance residual| < 30, so the paper's RANSAC loses the motion; Config.brightness
+    = "offset" fits the offset on the pixels whose depth agrees and recovers it."""
+    from jaxvo.brightness import apply, fit_offset
+    from jaxvo.pyramid import build_pyramid
+    from jaxvo.residuals import reference_points
+    a, b = static_pair
+    bright = Frame(np.clip(b.frame().intensity + 40.0, 0, 255).astype(np.float32), b.frame().depth)
+    plain = estimate_motion(a.frame(), bright, CAM, Config(), jax.random.key(0))
+    fitted = estimate_motion(a.frame(), bright, CAM, Config(brightness="offset"), jax.random.key(0))
+    t_err, r_err = _errors(fitted.T_cur_ref)
+    assert t_err < 3.0 and r_err < 0.15, (t_err, r_err)
+    assert bool(fitted.valid) and not bool(plain.valid)
+    assert _errors(plain.T_cur_ref)[0] > 3 * t_err
+    assert 35.0 < float(fitted.brightness) < 42.0          # clipping at 255 pulls a little under 40
+    assert float(plain.brightness) == 0.0
+    # the fit itself, at the true pose: the median offset, and 0 under thresh_lum / 3
+    ref_l = build_pyramid(a.frame().intensity, a.frame().depth, 1)[0]
+    pts = reference_points(ref_l, CAM, 4)
+    for shift, expected in [(25.0, 25.0), (-25.0, -25.0), (8.0, 0.0)]:
+        cur_l = build_pyramid(np.clip(b.frame().intensity + shift, 0, 255), b.frame().depth, 1)[0]
+        off = float(fit_offset(jnp.asarray(MOTION, jnp.float32), pts, cur_l, CAM, 30.0, 0.05))
+        assert abs(off - expected) < 2.5, (shift, off)
+    moved = apply(ref_l, jnp.float32(5.0))
+    np.testing.assert_allclose(np.asarray(moved.intensity), np.asarray(ref_l.intensity) + 5.0, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(moved.igrad[..., 1:]), np.asarray(ref_l.igrad[..., 1:]))
