@@ -18,6 +18,7 @@ Example::
     python experiments/keyframes.py                      # Bonn crowd and TUM fr2_desk
     python experiments/keyframes.py --gaps 1,6,default --seeds 0,1,2 --methods classic,ransac
     python experiments/keyframes.py --max-frames 20 --out /tmp/kf.md
+    python experiments/keyframes.py --gaps default --methods ransac --policy '{"fuse": false}'
 """
 from __future__ import annotations
 
@@ -50,6 +51,9 @@ def parse_args(argv=None):
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames per sequence")
     ap.add_argument("--config", default=None,
                     help="JSON object of jaxvo.Config fields applied to every method (e.g. '{\"ransac_finest\": 1}')")
+    ap.add_argument("--policy", default=None,
+                    help="JSON object of jaxvo.TrackConfig fields changed in the 'default' policy "
+                         "(e.g. '{\"fuse\": false, \"smooth\": false}')")
     ap.add_argument("--seeds", default="0", help="comma-separated PRNG key seeds for ransac (default 0)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "keyframes.md"),
                     help="markdown output (JSON next to it)")
@@ -66,15 +70,21 @@ def _ints(text: str, what: str):
     return values
 
 
-def _policies(text: str):
+def _policies(text: str, changes=None):
     """(gap, name, TrackConfig) per comma-separated token: a keyframe gap (1 = frame to frame,
     the paper's chaining; keyframes without segmentation) or "default" (jaxvo's default
-    policy: keyframes with the persistent static/dynamic segmentation)."""
+    policy: keyframes with the persistent static/dynamic segmentation; ``changes``, a dict of
+    TrackConfig fields, applied to it)."""
     out = []
     for token in [t.strip() for t in text.split(",") if t.strip()]:
         if token == "default":
-            p = TrackConfig()
-            out.append((p.max_gap, "default (segmented keyframes)", p))
+            try:
+                p = TrackConfig.from_json(json.dumps(changes)) if changes else TrackConfig()
+                p.validate()
+            except (ValueError, TypeError) as e:
+                raise SystemExit(f"--policy: {e}") from None
+            name = "default (segmented keyframes)" + (f" {json.dumps(changes)}" if changes else "")
+            out.append((p.max_gap, name, p))
             continue
         try:
             gap = int(token)
@@ -104,7 +114,11 @@ def main(argv=None) -> Path:
         raise SystemExit(common.missing_data_message())
     methods = [m for m in common.parse_methods(args.methods) if not common.is_peer(m)]
     seeds = _ints(args.seeds, "seeds")
-    policies = _policies(args.gaps)
+    try:
+        changes = json.loads(args.policy) if args.policy else None
+    except ValueError as e:
+        raise SystemExit(f"--policy: {e}") from None
+    policies = _policies(args.gaps, changes)
     try:
         base = json.loads(args.config) if args.config else {}
         Config.from_json({**base, "method": "ransac"})
