@@ -3,7 +3,8 @@
 Generates (cached) jaxvo synthetic sequences ``seq0`` (hand-held, static scene), ``seq1``
 (fixed camera, one person), ``seq2`` (pan-tilt head at 2 deg/s, one person), ``seq3`` (as
 seq2 with two persons) and ``handheld-fast`` (fast hand-held camera, a person close and
-fast), runs the three estimators on every consecutive pair and reports, per sequence and
+fast), and with ``--augment`` dynamic augmentations of real TUM sequences (synthetic persons
+composited into the real frames, real ground truth, exact masks), runs the three estimators on every consecutive pair and reports, per sequence and
 method: translational / rotational RPE (per frame and over 1 s), ATE, the drift of the last
 frame, FPS after compilation, the mean inlier ratio and the precision / recall / IoU of the
 moving mask (:func:`jaxvo.mapping.moving_mask`: outliers not hidden in the current frame,
@@ -15,6 +16,7 @@ RANSAC's inlier/outlier overlay on the most dynamic frame (Fig. 4/7).
     python experiments/paper_sequences.py                    # 90 frames each at 640x480
     python experiments/paper_sequences.py --quick            # 4 frames each, a smoke run
     python experiments/paper_sequences.py --frames 300 --sequences seq1,seq2
+    python experiments/paper_sequences.py --augment tum   # plus the real TUM sequences, augmented
 
 Writes ``experiments/results/paper_sequences.md`` and ``.json`` and the figures into
 ``experiments/results/paper_sequences/``; sequences are cached in ``experiments/results/cache/``.
@@ -69,6 +71,10 @@ def parse_args(argv=None):
     ap.add_argument("--sensor", dest="sensor", action="store_true", default=True,
                     help="Kinect-like sensor effects (default)")
     ap.add_argument("--no-sensor", dest="sensor", action="store_false", help="exact renders")
+    ap.add_argument("--augment", default=None,
+                    help="comma list of real TUM sequence folders to run too, each as its dynamic augmentation "
+                         "(jaxvo.synthetic.augment: 2 persons, 30 %% coverage, the seed; real frames, real ground "
+                         "truth, exact masks); 'tum' = every sequence under data_root()/tum")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences.md",
                     help="markdown output (json next to it, figures in <stem>/)")
@@ -81,11 +87,27 @@ def parse_args(argv=None):
     bad = [s for s in a.sequences if s not in SEQUENCES]
     if bad:
         ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(SEQUENCES)}")
+    a.augment = _augment_list(a.augment, ap)
     a.methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     bad = [m for m in a.methods if m not in METHODS + ("default",)]
     if bad:
         ap.error(f"unknown method(s) {', '.join(bad)}; choose from {', '.join(METHODS)}")
     return a
+
+
+def _augment_list(text: Optional[str], ap) -> List[Path]:
+    if not text:
+        return []
+    if text.strip() == "tum":
+        found = common.datasets.find_sequences(common.datasets.data_root() / "tum")
+        if not found:
+            ap.error(f"--augment tum: {common.missing_data_message()}")
+        return found
+    paths = [Path(t.strip()) for t in text.split(",") if t.strip()]
+    missing = [str(p) for p in paths if not (p / "groundtruth.txt").is_file()]
+    if missing:
+        ap.error(f"--augment: no TUM sequence with ground truth at {', '.join(missing)}")
+    return paths
 
 
 def synthetic_sequence(name: str, frames: int, size: str, seed: int, sensor: bool, cache=None) -> Path:
@@ -227,9 +249,18 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     rows: List[dict] = []
     figs: Dict[str, Dict[str, str]] = {}
     notes: List[str] = []
-    for name in a.sequences:
-        d = synthetic_sequence(name, a.frames, a.size, a.seed, a.sensor, a.cache)
-        seq = TumSequence(d, camera=DEFAULT.at_level(SIZES[a.size]))
+    jobs = [(name, lambda name=name: synthetic_sequence(name, a.frames, a.size, a.seed, a.sensor, a.cache),
+             DEFAULT.at_level(SIZES[a.size])) for name in a.sequences]
+    jobs += [(f"{common.short_name(p)}+persons", lambda p=p: common.augmented_sequence(
+        p, persons=2, coverage=0.3, seed=a.seed, max_frames=a.frames, cache_dir=a.cache), None) for p in a.augment]
+    for name, make, camera in jobs:
+        try:
+            d = make()
+        except common.datasets.DatasetError as e:   # e.g. ground truth that starts after the first frame
+            common.log(f"{name}: skipped, cannot augment: {e}")
+            notes.append(f"* **{name}**: skipped, cannot augment: {e}")
+            continue
+        seq = TumSequence(d, camera=camera)   # an augmentation: the real sequence's preset
         frames = common.load_frames(seq)
         mt, mp = read_moving_masks(d)
         H, W = seq.camera.height, seq.camera.width
