@@ -469,9 +469,10 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
 # frames over which a failed frame's coasting velocity is averaged
 _VELOCITY_FRAMES = 10
 
-# views that vote on a new reference's segmentation: a fixed number so that the map
-# update compiles once (missing views are padding with valid = False)
+# views that vote on a new reference's segmentation: one of two fixed numbers, so that the
+# map update compiles at most twice (missing views are padding with valid = False)
 _VIEWS = 12
+_FEW_VIEWS = 4
 
 
 class PairInputs(NamedTuple):
@@ -710,9 +711,12 @@ class Odometry:
         voters = [i for i in later[::-1] + earlier
                   if i in self._depths and i != new and (i == 0 or self.valid[i - 1])][:_VIEWS]
         shape = self._depths[new].shape
-        mds = np.zeros((_VIEWS,) + shape, np.float32)
-        Ts = np.tile(np.eye(4, dtype=np.float32), (_VIEWS, 1, 1))
-        ok = np.zeros(_VIEWS, bool)
+        # padded to one of two sizes: in the calm mode the voters are the 4 earlier frames, and
+        # voting for 12 views (8 of them padding) would cost 3x as much
+        n = _FEW_VIEWS if len(voters) <= _FEW_VIEWS else _VIEWS
+        mds = np.zeros((n,) + shape, np.float32)
+        Ts = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+        ok = np.zeros(n, bool)
         for k, i in enumerate(voters):
             mds[k] = np.asarray(self._depths[i])
             Ts[k] = geometry.inverse(P[i]) @ P[new]

@@ -177,21 +177,34 @@ def coherent_regions(L, depth, camera: Camera, params: SegmentParams, clusters: 
     C0 = P.reshape(h, w, 3)[gv[:, None], gu[None, :]].reshape(k, 3)
 
     def assign(points, C):
-        d2 = jnp.sum((points[:, None, :] - C[None, :, :]) ** 2, -1)
-        return jnp.argmin(d2, axis=1)
+        # nearest centre by |c|^2 - 2 p.c (|p|^2 is the same for every centre), one running
+        # minimum per centre: element-wise passes that XLA fuses into one loop. An argmin over
+        # an (N, k) distance array was most of a new reference's map update on the CPU
+        # (0.45 against 6.5 ms for the 76,800 pixels of a 320x240 map).
+        cc = jnp.sum(C * C, -1)
+        best = jnp.full(points.shape[:1], jnp.inf, points.dtype)
+        label = jnp.zeros(points.shape[:1], jnp.int32)
+        for c in range(k):
+            d = cc[c] - 2.0 * (points[:, 0] * C[c, 0] + points[:, 1] * C[c, 1] + points[:, 2] * C[c, 2])
+            closer = d < best     # strict: ties go to the first centre, as argmin does
+            best = jnp.where(closer, d, best)
+            label = jnp.where(closer, c, label)
+        return label
+
+    def counts(values, labels):
+        return jax.ops.segment_sum(values, labels, num_segments=k)
 
     def step(C, _):
         a = assign(sub, C)
-        onehot = jax.nn.one_hot(a, k) * sub_ok[:, None]
-        n = onehot.sum(0)
-        mean = (onehot.T @ sub) / jnp.maximum(n, 1.0)[:, None]
+        w = sub_ok.astype(jnp.float32)
+        n = counts(w, a)
+        mean = counts(sub * w[:, None], a) / jnp.maximum(n, 1.0)[:, None]
         return jnp.where(n[:, None] > 0, mean, C), None
 
     C, _ = jax.lax.scan(step, C0, None, length=iterations)
     labels = assign(P, C)
-    onehot = jax.nn.one_hot(labels, k) * valid[:, None]
     dyn = (L.reshape(-1) > 0) & valid
-    frac = (onehot.T @ dyn.astype(jnp.float32)) / jnp.maximum(onehot.sum(0), 1.0)
+    frac = counts(dyn.astype(jnp.float32), labels) / jnp.maximum(counts(valid.astype(jnp.float32), labels), 1.0)
     flag = (frac >= params.region_ratio)[labels] & valid
     return jnp.where(flag, jnp.maximum(L.reshape(-1), 2.0), L.reshape(-1)).reshape(h, w)
 
