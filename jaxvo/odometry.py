@@ -684,7 +684,7 @@ class Odometry:
             good = [i for i in range(ref + 1, j - policy.lag + 1) if self.valid[i - 1]]
             if good:
                 self._set_reference(good[-1], j)
-            elif j - ref >= 4 * policy.max_gap:
+            elif j - ref >= policy.restart:
                 self._set_reference(j - policy.lag, j)  # lost for long: restart from the held poses
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
         for old in [i for i in self._frames if i < self._ref]:

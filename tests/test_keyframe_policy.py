@@ -132,3 +132,20 @@ def test_failed_frames_coast_at_the_recent_velocity(noisy_estimator, monkeypatch
     short = _run(TrackConfig.keyframes(6, coast=5))
     np.testing.assert_allclose(short.poses[130], short.poses[104], atol=0)
     assert not np.allclose(short.poses[104], short.poses[99])
+
+
+@pytest.mark.parametrize("restart", [6, 10, 24])
+def test_reference_restarts_after_restart_failed_frames(noisy_estimator, monkeypatch, restart):
+    """Every estimate fails from frame 100 on. The reference moves once more, to frame 99, the
+    last frame whose estimate succeeded, and cannot move to a failed frame after that: it stays
+    there until ``restart`` frames after it, then jumps to the frame ``lag`` (3) back at its
+    held pose."""
+    monkeypatch.setattr(f"{__name__}.FAIL", set(range(100, 160)))
+    odo = _run(TrackConfig.keyframes(6, restart=restart))
+    refs = np.asarray(odo.references)          # refs[j - 1]: the reference of frame j
+    j = 99 + restart                            # the restart happens after frame j
+    assert refs[j - 1] == 99 and refs[j - 2] == 99
+    assert refs[j] == j - 3
+    assert not odo.valid[j - 3 - 1]             # the new reference is a failed (held) frame
+    with pytest.raises(ValueError, match="restart"):
+        TrackConfig.keyframes(6, restart=5).validate()
