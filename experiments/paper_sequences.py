@@ -155,8 +155,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates."""
     cam = seq.camera
     counts = np.zeros(4, np.int64)
-    cover = np.array([m.mean() for m in true_masks[:-1]])
-    show = int(np.argmax(cover)) if cover.size else 0
+    cover = np.array([m.mean() for m in true_masks])
     shown, secs, ratio, last = [None], [], [], [time.perf_counter()]
 
     def on_step(step):
@@ -164,8 +163,8 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
         pred, val = moving_mask(est, cam.width, cam.height, step.static_mask, valid_too=True)
         s = metrics.mask_scores(pred, true_masks[step.reference], val)
         counts[:] += (s.tp, s.fp, s.fn, s.tn)
-        if step.reference == show:
-            shown[0] = (~pred, val, show)
+        if shown[0] is None or cover[step.reference] > cover[shown[0][2]]:  # the most covered reference
+            shown[0] = (~pred, val, step.reference)
         ratio.append(float(est.inlier_ratio))
         now = time.perf_counter()
         secs.append(now - last[0])
