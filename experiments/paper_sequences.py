@@ -300,9 +300,13 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     lines = common.provenance_md(
         "Paper sequences (synthetic, exact ground truth): classic vs Huber vs RANSAC",
         __file__, argv_list,
-        extra=f"{a.frames} frames per sequence at {a.size}, 30 Hz, seed {a.seed}, "
-              f"{'Kinect-like sensor effects' if a.sensor else 'exact renders'}; sequences from "
-              f"`jaxvo.synthetic.generate`. Total wall time {{WALL}} s.")
+        extra=(f"Synthetic sequences ({', '.join(a.sequences)}): {a.frames} frames each at {a.size}, 30 Hz, "
+               f"seed {a.seed}, {'Kinect-like sensor effects' if a.sensor else 'exact renders'}, from "
+               f"`jaxvo.synthetic.generate`. " if a.sequences else "")
+              + (f"Dynamic augmentations ({', '.join(common.short_name(p) for p in a.augment)}): the real frames "
+                 f"(at most {a.frames}) with 2 synthetic persons covering ~30 % of the image composited in "
+                 f"(`jaxvo.synthetic.augment`, seed {a.seed}), the real ground truth and exact masks. "
+                 if a.augment else "") + "Total wall time {WALL} s.")
     lines += ["RPE per frame: RMSE translational (mm/frame) and rotational (deg/frame) error of consecutive "
               "pairs; RPE 1 s: drift in m/s and deg/s (n/a when the run is shorter than 1 s); ATE: RMSE (m) "
               "after rigid alignment; drift: error of the last pose relative to the first (cm, deg); FPS "
@@ -310,7 +314,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
               "(outliers not hidden by something in front in the current frame, plus the segmentation's "
               "dynamic pixels; jaxvo.mapping.moving_mask) against the true moving-pixel mask, pooled over "
               "all pairs, over the pixels where the residuals are defined.", ""]
-    cols = [("sequence", "sequence", "s"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),
+    cols = [("sequence", "sequence", "s"), ("frames", "frames", "d"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),
             ("RPE mm/frame", "rpef_t_mm", ".2f"), ("RPE deg/frame", "rpef_r", ".3f"),
             ("RPE 1 s m/s", "rpe1s_t", ".4f"), ("RPE 1 s deg/s", "rpe1s_r", ".3f"), ("ATE m", "ate", ".4f"),
             ("drift cm", "drift_t_cm", ".2f"), ("drift deg", "drift_r", ".2f"), ("FPS", "fps", ".1f"),

@@ -466,9 +466,6 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
     return segmentation.coherent_regions(L, new_md, camera, params)
 
 
-# frames over which a failed frame's coasting velocity is averaged
-_VELOCITY_FRAMES = 10
-
 # views that vote on a new reference's segmentation: one of two fixed numbers, so that the
 # map update compiles at most twice (missing views are padding with valid = False)
 _VIEWS = 12
@@ -595,13 +592,13 @@ class Odometry:
 
     def _held(self, j: int) -> np.ndarray:
         """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity
-        of the last :data:`_VELOCITY_FRAMES` frames while fewer than ``policy.coast`` frames in a
+        of the last ``policy.coast_window`` frames while fewer than ``policy.coast`` frames in a
         row have failed (a mean over 1/3 s: single estimates are off by several mm)."""
         P = self.poses
         failed = 0
         while failed < len(self.valid) and not self.valid[-1 - failed]:
             failed += 1
-        n = min(_VELOCITY_FRAMES, j - 1)
+        n = min(self.policy.coast_window, j - 1)
         if failed >= self.policy.coast or n < 1:
             return P[j - 1].copy()
         xi = geometry.log(geometry.inverse(P[j - 1 - n]) @ P[j - 1]) / n
