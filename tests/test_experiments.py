@@ -125,24 +125,43 @@ def test_paper_sequences_quick(tmp_path):
         assert Path(f).stat().st_size > 1000
 
 
+def test_paper_sequences_augmented_real_sequence(tmp_path):
+    """--augment runs a real TUM sequence with synthetic persons composited in, next to (here:
+    instead of) the synthetic sequences, with the mask scores against the exact masks."""
+    _require(STATIC)
+    out = tmp_path / "aug.md"
+    _script("paper_sequences").main(["--quick", "--methods", "classic", "--sequences", "", "--augment", str(STATIC),
+                                     "--cache", str(tmp_path / "cache"), "--out", str(out)])
+    data = json.loads(out.with_suffix(".json").read_text())
+    (row,) = data["rows"]
+    assert row["sequence"] == "freiburg2_desk+persons" and row["frames"] == 4
+    assert 15 < row["moving_pct"] < 45 and row["ate"] is not None and row["mask_counts"]["tp"] + row["mask_counts"]["fn"] > 0
+    text = out.read_text()
+    assert "Dynamic augmentations (freiburg2_desk)" in text and "Synthetic sequences (" not in text
+
+
 def test_keyframes_small(tmp_path):
     _require(STATIC)
     out = tmp_path / "kf.md"
-    _script("keyframes").main([str(STATIC), "--max-frames", "6", "--gaps", "1,3", "--seeds", "0,1",
-                               "--methods", "classic,ransac", "--out", str(out)])
+    _script("keyframes").main([str(STATIC), "--max-frames", "6", "--gaps", "1,3,default", "--seeds", "0,1",
+                               "--methods", "classic,ransac", "--policy", '{"calm_fraction": 0}', "--out", str(out)])
     text = out.read_text()
     assert "python experiments/keyframes.py" in text and "standing still" in text
     data = json.loads(out.with_suffix(".json").read_text())
     rows = {(r["method"], r["chaining"], r["seed"]): r for r in data["rows"]}
     # ransac once per seed, classic (no random numbers) once
+    dflt = 'default (segmented keyframes) {"calm_fraction": 0}'    # --policy changes the default's name
     assert set(rows) == {("standing still", "-", None), ("classic", "frame to frame", None),
                          ("classic", "keyframes 3", None), ("ransac", "frame to frame", 0),
-                         ("ransac", "frame to frame", 1), ("ransac", "keyframes 3", 0), ("ransac", "keyframes 3", 1)}
+                         ("ransac", "frame to frame", 1), ("ransac", "keyframes 3", 0), ("ransac", "keyframes 3", 1),
+                         ("classic", dflt, None), ("ransac", dflt, 0), ("ransac", dflt, 1)}
+    assert data["args"]["policy"] == '{"calm_fraction": 0}'
+
     for key, r in rows.items():
         if key[0] != "standing still":
             assert r["failures"] == 0 and 0 <= r["rpef_t"] < 0.02, (key, r)
     same = {c["chaining"]: c for c in data["same_policy"]}
-    assert set(same) == {"frame to frame", "keyframes 3"}
+    assert set(same) == {"frame to frame", "keyframes 3", dflt}
     for chaining, c in same.items():
         mean = np.mean([rows[("ransac", chaining, s)]["ate"] for s in (0, 1)])
         assert c["ransac_ate_mean"] == pytest.approx(mean)
