@@ -86,8 +86,9 @@ class Config:
       level first fits the exposure change I_cur ~ I_ref + offset on the pixels whose depth
       agrees at its starting pose, when it exceeds thresh_lum / 3 (jaxvo.brightness). Off by
       default: no measured gain on Bonn crowd, whose exposure changes happen while people
-      cover most of the view (seeds 0-11, RPE 1 s 0.062 against 0.065 m/s, within the
-      seed-to-seed spread of 0.034-0.089; fr2_desk unchanged at 0.0179).
+      cover most of the view (seeds 0-11, experiments/results/brightness_*.md: RPE 1 s 0.062
+      against 0.065 m/s and ATE 0.043 against 0.047 m, within the seed-to-seed spread of
+      0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179).
     """
     method: str = "ransac"
     p: Any = 0.99
