@@ -252,8 +252,9 @@ class TrackConfig(NamedTuple):
       people and give a wrong velocity.
     coast_window: frames over which the coasting velocity is averaged. With ``coast=30`` and
       a 2 s window (60), Bonn crowd seeds 0-11 gave RPE 1 s 0.061 against 0.065 m/s and ATE
-      0.040 against 0.047 m, but rotation 2.4 against 1.6 deg/s (``experiments/keyframes.py
-      --policy '{"coast": 30, "coast_window": 60}'``): not clearly better, so coasting stays off.
+      0.040 against 0.047 m, but rotation 2.37 against 1.61 deg/s (``experiments/keyframes.py
+      --policy '{"coast": 30, "coast_window": 60}'``, experiments/results/policy_coast60.md):
+      not clearly better, so coasting stays off.
     hold_invalid: an estimate that is not ``valid`` or implies an implausible step from the
       previous frame (beyond ``max_step`` metres or ``max_step_deg`` degrees) is replaced by
       the previous frame's pose (constant position) and reported invalid. 0.05 m and 5 deg
@@ -286,9 +287,11 @@ class TrackConfig(NamedTuple):
       could not move), the frame ``lag`` back becomes the reference anyway, at its held
       pose (>= max_gap): a chain restarted from a guessed pose, rather than a reference that
       no longer overlaps the view. Bonn crowd, seeds 0-11 (``experiments/keyframes.py --policy
-      '{"restart": 9}'``): 9 frames RPE 1 s 0.063 m/s, ATE 0.047 m; 24 frames 0.065, 0.047;
-      6 frames (seeds 0-5) 0.078: no setting clearly better, so the default stays 24
-      (``keyframes``: 4 x max_gap, as before this field).
+      '{"restart": 9}'``, experiments/results/policy_restart9.md): 9 frames RPE 1 s 0.063 m/s,
+      ATE 0.047 m, 1.44 deg/s, 20 failed frames; 24 frames 0.065, 0.047, 1.61, 28; 6 frames
+      (seeds 0-5, a scratch run) 0.078. Within the seed-to-seed spread (0.034-0.089 m/s), and
+      untested on the synthetic sequences, so the default stays 24 (``keyframes``: 4 x
+      max_gap, as before this field).
     """
     max_gap: int = 6
     lag: int = 3
