@@ -10,11 +10,12 @@ are computed per level for the photometric Jacobian.
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Tuple
+from typing import Any, NamedTuple, Optional, Sequence, Tuple
 
+import jax
 import jax.numpy as jnp
 
-__all__ = ["Level", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
+__all__ = ["Level", "level_size", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
            "num_levels_for"]
 
 
@@ -30,12 +31,38 @@ class Level(NamedTuple):
     weight: (h, w) in [0, 1], how far each pixel may be trusted as static scene (a user
     mask, a static-probability prior; 1 = fully, 0 = ignore); 2x2 block mean per level.
     It multiplies a reference pixel's weight everywhere it is used; a current frame's is unused.
+    size: None (the image fills the arrays) or, for a level padded into larger arrays (see
+    :func:`stack_padded`), (2,) int32 (h, w) of the image in their top-left corner, possibly
+    traced; the pad has depth 0 and weight 0. Validity tests use the size, indexing the
+    arrays' own shape.
     """
     intensity: jnp.ndarray
     depth: jnp.ndarray
     igrad: jnp.ndarray
     dgrad: jnp.ndarray
     weight: jnp.ndarray
+    size: Optional[Any] = None
+
+
+def level_size(level: Level):
+    """(h, w) of the image of ``level``: Python ints, or traced int32 scalars for a padded level."""
+    if level.size is None:
+        return level.depth.shape
+    return level.size[0], level.size[1]
+
+
+def stack_padded(levels: Sequence[Level]) -> Level:
+    """Levels of different sizes as one Level whose arrays have a leading axis (one entry per
+    level), each padded with zeros at the bottom and right to the largest (h, w) among them, and
+    ``size`` (n, 2) int32 their true (h, w), so that ``jax.lax.scan`` can run one program over them."""
+    H = max(l.depth.shape[0] for l in levels)
+    W = max(l.depth.shape[1] for l in levels)
+
+    def pad(x):
+        return jnp.pad(x, [(0, H - x.shape[0]), (0, W - x.shape[1])] + [(0, 0)] * (x.ndim - 2))
+
+    arrays = [jnp.stack([pad(getattr(l, f)) for l in levels]) for f in Level._fields[:5]]
+    return Level(*arrays, jnp.asarray([l.depth.shape for l in levels], jnp.int32))
 
 
 def sanitize_depth(depth, max_depth, min_depth=0.0):

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera
-from jaxvo.pyramid import Level
+from jaxvo.pyramid import Level, level_size
 from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
 from jaxvo.solvers import solve_pose_small
 
@@ -54,10 +54,10 @@ def inliers(res: Residuals, thresh_lum, thresh_depth):
 
 
 def sampling_cdf(level: Level, radius: int):
-    """(h*w,) int32 running count of the pixels :func:`sample_patches` may draw as patch centres:
+    """(h*w,) int32 (h, w: the level's arrays) running count of the pixels :func:`sample_patches` may draw as patch centres:
     valid depth, trusted as static (``level.weight`` >= 0.5), (2r+1)^2 neighbourhood inside the image."""
-    h, w = level.depth.shape
-    vv, uu = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+    h, w = level_size(level)  # the image's; the arrays may be padded (row-major flat index of the arrays)
+    vv, uu = jnp.meshgrid(jnp.arange(level.depth.shape[0]), jnp.arange(level.depth.shape[1]), indexing="ij")
     ok = (level.depth > 0) & (level.weight >= 0.5) & (uu >= radius) & (uu < w - radius) & (vv >= radius) & (vv < h - radius)
     return jnp.cumsum(ok.reshape(-1).astype(jnp.int32))
 

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from jaxvo.camera import Camera, backproject
 from jaxvo.geometry import transform_points
-from jaxvo.pyramid import Level
+from jaxvo.pyramid import Level, level_size
 
 __all__ = ["RefPoints", "Residuals", "reference_points", "select_points", "gather_points", "warp", "sample_bilinear",
            "sample_nearest", "residuals", "warp_jacobian", "photometric_terms", "rgbd_terms",
@@ -136,7 +136,8 @@ def sample_bilinear(images, u, v):
     """Bilinear sampling of (h, w, C) ``images`` at float pixel coords (N,) -> (N, C).
 
     Coordinates outside the image are clamped; callers mask them with their own
-    inside test. Pixel centres at integers.
+    inside test. Pixel centres at integers. In a padded level (:func:`jaxvo.pyramid.stack_padded`)
+    a point on the image's last row or column reads the pad with weight 0: the same value.
     """
     h, w = images.shape[:2]
     u0 = jnp.clip(jnp.floor(u), 0, w - 2)
@@ -163,7 +164,7 @@ def sample_nearest(image, u, v):
 
 def residuals(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera) -> Residuals:
     """Photometric and depth residuals of reference points warped into the current level."""
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w)
     i_cur = sample_bilinear(cur.intensity[..., None], u, v)[:, 0]
@@ -207,7 +208,7 @@ def photometric_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera):
     (its depth there is nearer by more than ``OCCLUSION_MARGIN``): such a point is
     not visible, so its intensity says nothing about the pose.
     """
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
     s = sample_bilinear(cur.igrad, u, v)
@@ -229,7 +230,7 @@ def rgbd_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera, depth_weig
     into luminance-equivalent units (e.g. 30 / 0.05 = 600 makes the two
     RANSAC inlier thresholds equally strong).
     """
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
     s = sample_bilinear(jnp.concatenate([cur.igrad, cur.dgrad], -1), u, v)
