@@ -30,8 +30,8 @@ from jaxvo import aot, brightness, geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
-from jaxvo.pyramid import build_pyramid, num_levels_for, stack_padded
-from jaxvo.ransac import inliers, ransac_level
+from jaxvo.pyramid import build_pyramid, level_slice, num_levels_for, stack_padded
+from jaxvo.ransac import inliers, ransac_level, sampling_cdf
 from jaxvo.residuals import RefPoints, reference_points, residuals, select_points
 from jaxvo.solvers import COMPILER_OPTIONS, irls, jit, solve_pose, solve_pose_small
 
@@ -126,39 +126,58 @@ def _stack_points(point_lists):
 
 
 def _level_inputs(ref_pyr, cur_pyr, camera: Camera, config: Config, levels):
-    """What the level body of :func:`_estimate` reads, for ``levels``, stacked along a leading
-    axis (coarse to fine): the level index, the reference and current levels padded to the
-    largest (see :func:`jaxvo.pyramid.stack_padded`), the level's camera, and the refinement,
-    scoring and brightness points (padded with invalid points; none of them depends on the pose,
-    and the brightness offset is added to their intensities in the body)."""
+    """What the level body of :func:`_estimate` reads, for ``levels`` (coarse to fine): (xs,
+    stacks). xs, stacked along a leading axis for ``lax.scan``: the level index, the sizes of
+    its reference and current level in the stacks, its camera, and its refinement, scoring and
+    brightness points (padded with invalid points; none of them depends on the pose, and the
+    brightness offset is added to their intensities in the body). stacks: the reference and
+    current levels padded to the largest and stacked (:func:`jaxvo.pyramid.stack_padded`),
+    without their sizes: the body reads them whole (slicing an entry out of them per level
+    would copy it)."""
     cams, pts, score, grid = [], [], [], []
     for level in levels:
-        cam, ref_l = camera.at_level(level), ref_pyr[level]
-        stride = _score_stride(ref_l, config)
-        cams.append(cam)
-        pts.append(select_points(ref_l, cam, _block(config, level)))
-        grid.append(reference_points(ref_l, cam, stride))
-        score.append(select_points(ref_l, cam, stride) if config.score_selection == "gradient" else grid[-1])
+        cams.append(camera.at_level(level))
+        for lst, p in zip((pts, score, grid), _level_points(ref_pyr[level], cams[-1], config, level)):
+            lst.append(p)
     # one camera pytree: width/height are static metadata, the padded arrays' size
     w, h = cams[-1].width, cams[-1].height
     cam = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[c.with_size(w, h) for c in cams])
-    return (jnp.asarray(levels, jnp.int32), stack_padded([ref_pyr[l] for l in levels]),
-            stack_padded([cur_pyr[l] for l in levels]), cam, _stack_points(pts), _stack_points(score),
-            _stack_points(grid))
+    # only what the body reads: the reference's pixels for RANSAC's samples, the current
+    # level's images for the warped points (select_points above read the rest)
+    ransac = config.method == "ransac" and levels[0] >= config.ransac_finest
+    rgbd = config.terms == "rgbd" or (ransac and config.hypothesis_terms == "rgbd")
+    ref = stack_padded([ref_pyr[l] for l in levels], ("intensity", "depth", "weight") if ransac else ())
+    cur = stack_padded([cur_pyr[l] for l in levels], ("intensity", "depth", "igrad") + (("dgrad",) if rgbd else ()))
+    xs = (jnp.asarray(levels, jnp.int32), ref.size, cur.size, cam, _stack_points(pts), _stack_points(score),
+          _stack_points(grid))
+    return xs, (ref._replace(size=None), cur._replace(size=None))
+
+
+def _level_points(ref_l, cam, config: Config, level: int):
+    """(refinement, scoring, brightness) points of a reference level: one per block of
+    ``_block`` (the strongest gradient), the scoring grid or its strongest-gradient pixels, and
+    the grid the brightness offset is fitted on."""
+    stride = _score_stride(ref_l, config)
+    grid = reference_points(ref_l, cam, stride)
+    score = select_points(ref_l, cam, stride) if config.score_selection == "gradient" else grid
+    return select_points(ref_l, cam, _block(config, level)), score, grid
 
 
 def _shifted(pts: RefPoints, offset) -> RefPoints:
     return pts._replace(intensity=pts.intensity + offset)
 
 
-def _level_step(config: Config, key, dw, ransac: bool, carry, xs):
+def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
     """One pyramid level (the body of the scan over levels): carry (T, brightness offset) in,
-    the level's pose and offset out, with (hypotheses, iterations, information J^T W J) per level."""
+    the level's pose and offset out, with (hypotheses, iterations, information J^T W J) per level.
+    ``stacks``, ``xs``: see :func:`_level_inputs`; the level images are the whole stacks, read
+    at the level's entry, never copied out."""
     T, offset = carry
-    level, ref_l, cur_l, cam, pts, score_pts, grid_pts = xs
+    level, ref_size, cur_size, cam, pts, score_pts, grid_pts = xs
+    ref_l, cur_l = stacks[0]._replace(size=ref_size), stacks[1]._replace(size=cur_size)
     if config.brightness == "offset":   # exposure changes: fitted at the level's starting pose
         offset = brightness.fit_offset(T, grid_pts, cur_l, cam, config.thresh_lum, config.thresh_depth)
-        ref_l = brightness.apply(ref_l, offset)
+        # added to the reference points' luminance (brightness.apply on the level, point by point)
         pts, score_pts = _shifted(pts, offset), _shifted(score_pts, offset)
     ones = pts.weight
     hyps = jnp.int32(0)
@@ -173,7 +192,7 @@ def _level_step(config: Config, key, dw, ransac: bool, carry, xs):
         if ransac:  # finer levels: refine the carried-up consensus only
             if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
                 T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
-            rs = ransac_level(T, _gated(ref_l, cur_l, cam, T, config.sample_gate), cur_l, cam, score_pts,
+            rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
                               jax.random.fold_in(key, level),
                               p=config.p, w=config.w, thresh_lum=config.thresh_lum,
                               thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
@@ -181,7 +200,8 @@ def _level_step(config: Config, key, dw, ransac: bool, carry, xs):
                               max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
-                              scoring=config.scoring)
+                              scoring=config.scoring, offset=offset,
+                              cdf=_sampling_cdf(ref_l, cur_l, cam, T, config))
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)
@@ -209,15 +229,27 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     hyps = jnp.zeros(L, jnp.int32)
     iters = jnp.zeros(L, jnp.int32)
     carry = (T_init, jnp.float32(0.0))
-    # the levels of a group run as one scan, compiled once (not once per level); the level
-    # images are padded to the group's largest, the point lists to its longest (invalid points)
     for levels in _level_groups(config, L):
-        step = functools.partial(_level_step, config, key, dw, levels[0] >= config.ransac_finest)
-        carry, (hy, it, hess) = jax.lax.scan(step, carry, _level_inputs(ref_pyr, cur_pyr, camera, config, levels))
-        hyps = hyps.at[jnp.asarray(levels)].set(hy)
-        iters = iters.at[jnp.asarray(levels)].set(it)
+        ransac = levels[0] >= config.ransac_finest
+        if config.scan_levels:
+            # the group's levels run as one scan, compiled once (not once per level); the level
+            # images padded to the group's largest, the point lists to its longest (invalid points)
+            xs, stacks = _level_inputs(ref_pyr, cur_pyr, camera, config, levels)
+            step = functools.partial(_level_step, config, key, dw, ransac, stacks)
+            carry, (hy, it, hess) = jax.lax.scan(step, carry, xs)
+            hessian = hess[-1]
+        else:  # each level its own code, at its own size
+            hy, it = [], []
+            for level in levels:
+                cam = camera.at_level(level)
+                xs = (level, None, None, cam) + _level_points(ref_pyr[level], cam, config, level)
+                step = functools.partial(_level_step, config, key, dw, ransac, (ref_pyr[level], cur_pyr[level]))
+                carry, (h1, i1, hessian) = step(carry, xs)
+                hy.append(h1)
+                it.append(i1)
+        hyps = hyps.at[jnp.asarray(levels)].set(jnp.asarray(hy))
+        iters = iters.at[jnp.asarray(levels)].set(jnp.asarray(it))
     T, offset = carry
-    hessian = hess[-1]
     level = config.finest_level
     cam, ref_l, cur_l = camera.at_level(level), ref_pyr[level], cur_pyr[level]
     if config.brightness == "offset":
@@ -259,7 +291,8 @@ def _estimate_call(*args):
 def _gated(ref_l, cur_l, cam, T, gate):
     """``ref_l`` with the weight of pixels whose depth residual at T exceeds ``gate`` set to 0
     (RANSAC draws its samples among weight >= 0.5); unchanged if gate <= 0 or if fewer than
-    10 % of the trusted pixels would remain."""
+    10 % of the trusted pixels would remain. ``ref_l``: 2-D arrays (a stacked level's entry,
+    jaxvo.pyramid.level_slice, or a plain level); ``cur_l`` may be stacked."""
     def gate_weights(weight):
         res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
         far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
@@ -269,6 +302,15 @@ def _gated(ref_l, cur_l, cam, T, gate):
 
     # off by default: no dense residual pass per level then (a cond, as gate may be traced)
     return ref_l._replace(weight=jax.lax.cond(gate > 0, gate_weights, lambda w: w, ref_l.weight))
+
+
+def _sampling_cdf(ref_l, cur_l, cam, T, config):
+    """RANSAC's sampling CDF (jaxvo.ransac.sampling_cdf) of the (stacked) reference level, the
+    sample gate applied: the gated branch alone copies the level's entry out of the stack."""
+    def gated():
+        return sampling_cdf(_gated(level_slice(ref_l), cur_l, cam, T, config.sample_gate), config.patch_radius)
+
+    return jax.lax.cond(config.sample_gate > 0, gated, lambda: sampling_cdf(ref_l, config.patch_radius))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple, Optional, Sequence, Tuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["Level", "level_size", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
+__all__ = ["Level", "level_size", "flat_offset", "level_slice", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
            "num_levels_for"]
 
 
@@ -31,10 +31,11 @@ class Level(NamedTuple):
     weight: (h, w) in [0, 1], how far each pixel may be trusted as static scene (a user
     mask, a static-probability prior; 1 = fully, 0 = ignore); 2x2 block mean per level.
     It multiplies a reference pixel's weight everywhere it is used; a current frame's is unused.
-    size: None (the image fills the arrays) or, for a level padded into larger arrays (see
-    :func:`stack_padded`), (2,) int32 (h, w) of the image in their top-left corner, possibly
-    traced; the pad has depth 0 and weight 0. Validity tests use the size, indexing the
-    arrays' own shape.
+    size: None (the image fills the arrays), or for levels stacked by :func:`stack_padded`,
+    (3,) int32 (index, h, w), possibly traced: the arrays hold several levels along a leading
+    axis, each padded at the bottom and right (depth 0, weight 0), and this level is entry
+    ``index`` with an (h, w) image. Validity tests use (h, w); indexing the arrays' own shape.
+    (2-D arrays with a size: one such entry, ``index`` unused; see :func:`level_slice`.)
     """
     intensity: jnp.ndarray
     depth: jnp.ndarray
@@ -45,24 +46,41 @@ class Level(NamedTuple):
 
 
 def level_size(level: Level):
-    """(h, w) of the image of ``level``: Python ints, or traced int32 scalars for a padded level."""
+    """(h, w) of the image of ``level``: Python ints, or traced int32 scalars for a stacked level."""
     if level.size is None:
-        return level.depth.shape
-    return level.size[0], level.size[1]
+        return level.depth.shape[-2:]
+    return level.size[1], level.size[2]
 
 
-def stack_padded(levels: Sequence[Level]) -> Level:
+def flat_offset(level: Level):
+    """Index of the level's first pixel in its (h, w) arrays flattened (0 unless stacked)."""
+    if level.size is None or level.depth.ndim == 2:
+        return 0
+    return level.size[0] * (level.depth.shape[1] * level.depth.shape[2])
+
+
+def level_slice(level: Level) -> Level:
+    """A stacked level's own entry: its (padded) 2-D arrays, the size kept (fields that are None stay None)."""
+    if level.depth.ndim == 2:
+        return level
+    return Level(*(None if x is None else x[level.size[0]] for x in level[:5]), level.size)
+
+
+def stack_padded(levels: Sequence[Level], fields: Sequence[str] = Level._fields[:5]) -> Level:
     """Levels of different sizes as one Level whose arrays have a leading axis (one entry per
     level), each padded with zeros at the bottom and right to the largest (h, w) among them, and
-    ``size`` (n, 2) int32 their true (h, w), so that ``jax.lax.scan`` can run one program over them."""
+    ``size`` (n, 3) int32 (index, h, w), so that ``jax.lax.scan`` over it runs one program for
+    all of them. Only ``fields`` are stacked (the others are None: what a reader does not need
+    is not copied)."""
     H = max(l.depth.shape[0] for l in levels)
     W = max(l.depth.shape[1] for l in levels)
 
     def pad(x):
         return jnp.pad(x, [(0, H - x.shape[0]), (0, W - x.shape[1])] + [(0, 0)] * (x.ndim - 2))
 
-    arrays = [jnp.stack([pad(getattr(l, f)) for l in levels]) for f in Level._fields[:5]]
-    return Level(*arrays, jnp.asarray([l.depth.shape for l in levels], jnp.int32))
+    arrays = [jnp.stack([pad(getattr(l, f)) for l in levels]) if f in fields else None for f in Level._fields[:5]]
+    size = [(i,) + tuple(l.depth.shape) for i, l in enumerate(levels)]
+    return Level(*arrays, jnp.asarray(size, jnp.int32))
 
 
 def sanitize_depth(depth, max_depth, min_depth=0.0):
