@@ -101,9 +101,9 @@ def _score_stride(level, config: Config) -> int:
 
 
 def _level_groups(config: Config, L: int):
-    """The levels processed (coarse to fine) in groups that each run as one ``lax.scan``: one
-    compiled program per group instead of one per level. A group's levels share the static
-    choice of whether RANSAC runs (levels >= ransac_finest), so the body needs no cond."""
+    """The levels processed (coarse to fine) in groups that share the static choice of whether
+    RANSAC runs (levels >= ransac_finest). With ``Config.scan_levels`` each group runs as one
+    ``lax.scan`` (one compiled level body per group, no cond on the level inside it)."""
     levels = list(range(L - 1, config.finest_level - 1, -1))
     groups = []
     for level in levels:
@@ -168,10 +168,11 @@ def _shifted(pts: RefPoints, offset) -> RefPoints:
 
 
 def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
-    """One pyramid level (the body of the scan over levels): carry (T, brightness offset) in,
-    the level's pose and offset out, with (hypotheses, iterations, information J^T W J) per level.
-    ``stacks``, ``xs``: see :func:`_level_inputs`; the level images are the whole stacks, read
-    at the level's entry, never copied out."""
+    """One pyramid level: carry (T, brightness offset) in, the level's pose and offset out, with
+    (hypotheses, iterations, information J^T W J) of the level. The body of the scan over levels
+    (``stacks``, ``xs``: see :func:`_level_inputs`; the level images are the whole stacks, read
+    at the level's entry, never copied out), or called once per level with its own plain
+    (reference, current) levels as ``stacks``, sizes None and unpadded points."""
     T, offset = carry
     level, ref_size, cur_size, cam, pts, score_pts, grid_pts = xs
     ref_l, cur_l = stacks[0]._replace(size=ref_size), stacks[1]._replace(size=cur_size)
