@@ -89,6 +89,11 @@ class Config:
       cover most of the view (seeds 0-11, experiments/results/brightness_*.md: RPE 1 s 0.062
       against 0.065 m/s and ATE 0.043 against 0.047 m, within the seed-to-seed spread of
       0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179).
+    scan_levels: *static*, run the pyramid levels as ``lax.scan`` over one level body (padded
+      to the finest level's size) instead of one copy of the code per level: about half the
+      XLA compile time of the first call (ransac 29 -> 15 CPU-s), the same poses to float32
+      rounding, but 1.2-1.9x slower per pair on CPU (experiments/results/scan_levels.md,
+      ``python experiments/scan_levels.py``); off by default.
     """
     method: str = "ransac"
     p: Any = 0.99
@@ -124,6 +129,7 @@ class Config:
     min_photometric_agreement: Any = 0.65
     sample_gate: Any = 0.0
     brightness: str = "none"
+    scan_levels: bool = False
 
     @classmethod
     def paper(cls, method: str = "ransac", **changes) -> "Config":
@@ -198,12 +204,13 @@ _RULES = {
     "min_photometric_agreement": real(0, 1),
     "sample_gate": real(0),
     "brightness": choice("none", "offset"),
+    "scan_levels": flag(),
 }
 
 _STATIC = ["method", "n_points", "patch_radius", "max_hypotheses", "batch_size", "num_levels", "finest_level",
            "max_iterations", "hypothesis_iterations", "irls_rounds", "irls_iterations", "refine_rounds", "blocks",
            "ransac_finest", "max_score_pixels", "terms", "hypothesis_terms", "scoring", "score_selection",
-           "consensus_weights", "prior_candidate", "brightness"]
+           "consensus_weights", "prior_candidate", "brightness", "scan_levels"]
 jax.tree_util.register_dataclass(
     Config, data_fields=[f.name for f in dataclasses.fields(Config) if f.name not in _STATIC], meta_fields=_STATIC)
 

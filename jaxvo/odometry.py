@@ -30,9 +30,9 @@ from jaxvo import aot, brightness, geometry, segmentation
 from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
-from jaxvo.pyramid import build_pyramid, num_levels_for
-from jaxvo.ransac import inliers, ransac_level
-from jaxvo.residuals import reference_points, residuals, select_points
+from jaxvo.pyramid import build_pyramid, level_slice, num_levels_for, stack_padded
+from jaxvo.ransac import inliers, ransac_level, sampling_cdf
+from jaxvo.residuals import RefPoints, reference_points, residuals, select_points
 from jaxvo.solvers import COMPILER_OPTIONS, irls, jit, solve_pose, solve_pose_small
 
 __all__ = ["Config", "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity", "Odometry", "track", "Track",
@@ -100,68 +100,161 @@ def _score_stride(level, config: Config) -> int:
     return max(1, int(np.ceil(np.sqrt(hh * ww / config.max_score_pixels))))
 
 
+def _level_groups(config: Config, L: int):
+    """The levels processed (coarse to fine) in groups that share the static choice of whether
+    RANSAC runs (levels >= ransac_finest). With ``Config.scan_levels`` each group runs as one
+    ``lax.scan`` (one compiled level body per group, no cond on the level inside it)."""
+    levels = list(range(L - 1, config.finest_level - 1, -1))
+    groups = []
+    for level in levels:
+        if groups and (groups[-1][-1] >= config.ransac_finest) == (level >= config.ransac_finest):
+            groups[-1].append(level)
+        else:
+            groups.append([level])
+    return groups
+
+
+def _pad_points(pts: RefPoints, n: int) -> RefPoints:
+    """``pts`` extended to n points with invalid ones (valid False, weight 0, at pixel (0, 0))."""
+    return RefPoints(*(jnp.pad(x, [(0, n - x.shape[0])] + [(0, 0)] * (x.ndim - 1)) for x in pts))
+
+
+def _stack_points(point_lists):
+    """Per-level RefPoints padded to a common length and stacked with a leading level axis."""
+    n = max(p.valid.shape[0] for p in point_lists)
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[_pad_points(p, n) for p in point_lists])
+
+
+def _level_inputs(ref_pyr, cur_pyr, camera: Camera, config: Config, levels):
+    """What the level body of :func:`_estimate` reads, for ``levels`` (coarse to fine): (xs,
+    stacks). xs, stacked along a leading axis for ``lax.scan``: the level index, the sizes of
+    its reference and current level in the stacks, its camera, and its refinement, scoring and
+    brightness points (padded with invalid points; none of them depends on the pose, and the
+    brightness offset is added to their intensities in the body). stacks: the reference and
+    current levels padded to the largest and stacked (:func:`jaxvo.pyramid.stack_padded`),
+    without their sizes: the body reads them whole (slicing an entry out of them per level
+    would copy it)."""
+    cams, pts, score, grid = [], [], [], []
+    for level in levels:
+        cams.append(camera.at_level(level))
+        for lst, p in zip((pts, score, grid), _level_points(ref_pyr[level], cams[-1], config, level)):
+            lst.append(p)
+    # one camera pytree: width/height are static metadata, the padded arrays' size
+    w, h = cams[-1].width, cams[-1].height
+    cam = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[c.with_size(w, h) for c in cams])
+    # only what the body reads: the reference's pixels for RANSAC's samples, the current
+    # level's images for the warped points (select_points above read the rest)
+    ransac = config.method == "ransac" and levels[0] >= config.ransac_finest
+    rgbd = config.terms == "rgbd" or (ransac and config.hypothesis_terms == "rgbd")
+    ref = stack_padded([ref_pyr[l] for l in levels], ("intensity", "depth", "weight") if ransac else ())
+    cur = stack_padded([cur_pyr[l] for l in levels], ("intensity", "depth", "igrad") + (("dgrad",) if rgbd else ()))
+    xs = (jnp.asarray(levels, jnp.int32), ref.size, cur.size, cam, _stack_points(pts), _stack_points(score),
+          _stack_points(grid))
+    return xs, (ref._replace(size=None), cur._replace(size=None))
+
+
+def _level_points(ref_l, cam, config: Config, level: int):
+    """(refinement, scoring, brightness) points of a reference level: one per block of
+    ``_block`` (the strongest gradient), the scoring grid or its strongest-gradient pixels, and
+    the grid the brightness offset is fitted on."""
+    stride = _score_stride(ref_l, config)
+    grid = reference_points(ref_l, cam, stride)
+    score = select_points(ref_l, cam, stride) if config.score_selection == "gradient" else grid
+    return select_points(ref_l, cam, _block(config, level)), score, grid
+
+
+def _shifted(pts: RefPoints, offset) -> RefPoints:
+    return pts._replace(intensity=pts.intensity + offset)
+
+
+def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
+    """One pyramid level: carry (T, brightness offset) in, the level's pose and offset out, with
+    (hypotheses, iterations, information J^T W J) of the level. The body of the scan over levels
+    (``stacks``, ``xs``: see :func:`_level_inputs`; the level images are the whole stacks, read
+    at the level's entry, never copied out), or called once per level with its own plain
+    (reference, current) levels as ``stacks``, sizes None and unpadded points."""
+    T, offset = carry
+    level, ref_size, cur_size, cam, pts, score_pts, grid_pts = xs
+    ref_l, cur_l = stacks[0]._replace(size=ref_size), stacks[1]._replace(size=cur_size)
+    if config.brightness == "offset":   # exposure changes: fitted at the level's starting pose
+        offset = brightness.fit_offset(T, grid_pts, cur_l, cam, config.thresh_lum, config.thresh_depth)
+        # added to the reference points' luminance (brightness.apply on the level, point by point)
+        pts, score_pts = _shifted(pts, offset), _shifted(score_pts, offset)
+    ones = pts.weight
+    hyps = jnp.int32(0)
+    if config.method == "classic":
+        sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
+        iters = sol.iterations
+    elif config.method == "huber":
+        inner = config.irls_iterations
+        sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
+        iters = sol.iterations
+    else:
+        if ransac:  # finer levels: refine the carried-up consensus only
+            if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
+                T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
+            rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
+                              jax.random.fold_in(key, level),
+                              p=config.p, w=config.w, thresh_lum=config.thresh_lum,
+                              thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
+                              n=config.n_points, radius=config.patch_radius,
+                              max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
+                              hypothesis_iterations=config.hypothesis_iterations,
+                              depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
+                              scoring=config.scoring, offset=offset,
+                              cdf=_sampling_cdf(ref_l, cur_l, cam, T, config))
+            hyps = rs.hypotheses
+            T = rs.T
+        iters = jnp.int32(0)
+        for _ in range(config.refine_rounds):
+            mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
+            consensus = jnp.where(mask, pts.weight, 0.0)
+            if config.consensus_weights == "huber":
+                inner = config.irls_iterations
+                sol = irls(T, pts, cur_l, cam, consensus, config.huber_k, config.irls_rounds,
+                           inner, depth_weight=dw)
+            else:
+                sol = solve_pose(T, pts, cur_l, cam, consensus, config.max_iterations, depth_weight=dw)
+            T = sol.T
+            iters = iters + sol.iterations
+    return (sol.T, offset), (hyps, iters, sol.hessian)
+
+
 def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init, ref_weight):
     _TRACES["count"] += 1
     h, w = ref_int.shape
     L = _levels(config, w, h)
     ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth, ref_weight)
     cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
-    T = T_init
     dw = config.depth_weight if config.terms == "rgbd" else None
-    hyps = [jnp.int32(0)] * L
-    iters = [jnp.int32(0)] * L
-    sol = None
-    offset = jnp.float32(0.0)
-    for level in range(L - 1, config.finest_level - 1, -1):
-        cam = camera.at_level(level)
-        ref_l, cur_l = ref_pyr[level], cur_pyr[level]
-        if config.brightness == "offset":   # exposure changes: fitted at the level's starting pose
-            offset = brightness.fit_offset(T, reference_points(ref_l, cam, _score_stride(ref_l, config)), cur_l,
-                                           cam, config.thresh_lum, config.thresh_depth)
-            ref_l = brightness.apply(ref_l, offset)
-        pts = select_points(ref_l, cam, _block(config, level))
-        ones = pts.weight
-        if config.method == "classic":
-            sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
-            iters[level] = sol.iterations
-        elif config.method == "huber":
-            inner = config.irls_iterations
-            sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
-            iters[level] = sol.iterations
-        else:
-            score_stride = _score_stride(ref_l, config)
-            if config.score_selection == "gradient":
-                score_pts = select_points(ref_l, cam, score_stride)
-            else:
-                score_pts = reference_points(ref_l, cam, score_stride)
-            if level >= config.ransac_finest:  # finer levels: refine the carried-up consensus only
-                if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
-                    T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
-                rs = ransac_level(T, _gated(ref_l, cur_l, cam, T, config.sample_gate), cur_l, cam, score_pts,
-                                  jax.random.fold_in(key, level),
-                                  p=config.p, w=config.w, thresh_lum=config.thresh_lum,
-                                  thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
-                                  n=config.n_points, radius=config.patch_radius,
-                                  max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
-                                  hypothesis_iterations=config.hypothesis_iterations,
-                                  depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
-                                  scoring=config.scoring)
-                hyps[level] = rs.hypotheses
-                T = rs.T
-            it = jnp.int32(0)
-            for _ in range(config.refine_rounds):
-                mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
-                consensus = jnp.where(mask, pts.weight, 0.0)
-                if config.consensus_weights == "huber":
-                    inner = config.irls_iterations
-                    sol = irls(T, pts, cur_l, cam, consensus, config.huber_k, config.irls_rounds,
-                               inner, depth_weight=dw)
-                else:
-                    sol = solve_pose(T, pts, cur_l, cam, consensus, config.max_iterations, depth_weight=dw)
-                T = sol.T
-                it = it + sol.iterations
-            iters[level] = it
-        T = sol.T
+    hyps = jnp.zeros(L, jnp.int32)
+    iters = jnp.zeros(L, jnp.int32)
+    carry = (T_init, jnp.float32(0.0))
+    for levels in _level_groups(config, L):
+        ransac = levels[0] >= config.ransac_finest
+        if config.scan_levels:
+            # the group's levels run as one scan, compiled once (not once per level); the level
+            # images padded to the group's largest, the point lists to its longest (invalid points)
+            xs, stacks = _level_inputs(ref_pyr, cur_pyr, camera, config, levels)
+            step = functools.partial(_level_step, config, key, dw, ransac, stacks)
+            carry, (hy, it, hess) = jax.lax.scan(step, carry, xs)
+            hessian = hess[-1]
+        else:  # each level its own code, at its own size
+            hy, it = [], []
+            for level in levels:
+                cam = camera.at_level(level)
+                xs = (level, None, None, cam) + _level_points(ref_pyr[level], cam, config, level)
+                step = functools.partial(_level_step, config, key, dw, ransac, (ref_pyr[level], cur_pyr[level]))
+                carry, (h1, i1, hessian) = step(carry, xs)
+                hy.append(h1)
+                it.append(i1)
+        hyps = hyps.at[jnp.asarray(levels)].set(jnp.asarray(hy))
+        iters = iters.at[jnp.asarray(levels)].set(jnp.asarray(it))
+    T, offset = carry
+    level = config.finest_level
+    cam, ref_l, cur_l = camera.at_level(level), ref_pyr[level], cur_pyr[level]
+    if config.brightness == "offset":
+        ref_l = brightness.apply(ref_l, offset)
 
     # per-pixel masks and statistics at the finest level processed, all pixels
     # ref_l, cur_l: the finest level processed, ref_l with the brightness fitted there
@@ -173,10 +266,10 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     wts = inl if config.method == "ransac" else res.valid_int
     nw = jnp.maximum(jnp.sum(wts), 1)
     var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
-    info = sol.hessian / jnp.maximum(var, 1e-6)
+    info = hessian / jnp.maximum(var, 1e-6)
     valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
-                          jnp.stack(hyps), jnp.stack(iters), valid, info, jnp.sqrt(var),
+                          hyps, iters, valid, info, jnp.sqrt(var),
                           (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl),
                           offset)
 
@@ -199,7 +292,8 @@ def _estimate_call(*args):
 def _gated(ref_l, cur_l, cam, T, gate):
     """``ref_l`` with the weight of pixels whose depth residual at T exceeds ``gate`` set to 0
     (RANSAC draws its samples among weight >= 0.5); unchanged if gate <= 0 or if fewer than
-    10 % of the trusted pixels would remain."""
+    10 % of the trusted pixels would remain. ``ref_l``: 2-D arrays (a stacked level's entry,
+    jaxvo.pyramid.level_slice, or a plain level); ``cur_l`` may be stacked."""
     def gate_weights(weight):
         res = residuals(T, reference_points(ref_l, cam, 1), cur_l, cam)
         far = (res.valid_depth & (jnp.abs(res.r_depth) > gate)).reshape(ref_l.depth.shape)
@@ -209,6 +303,15 @@ def _gated(ref_l, cur_l, cam, T, gate):
 
     # off by default: no dense residual pass per level then (a cond, as gate may be traced)
     return ref_l._replace(weight=jax.lax.cond(gate > 0, gate_weights, lambda w: w, ref_l.weight))
+
+
+def _sampling_cdf(ref_l, cur_l, cam, T, config):
+    """RANSAC's sampling CDF (jaxvo.ransac.sampling_cdf) of the (stacked) reference level, the
+    sample gate applied: the gated branch alone copies the level's entry out of the stack."""
+    def gated():
+        return sampling_cdf(_gated(level_slice(ref_l), cur_l, cam, T, config.sample_gate), config.patch_radius)
+
+    return jax.lax.cond(config.sample_gate > 0, gated, lambda: sampling_cdf(ref_l, config.patch_radius))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):

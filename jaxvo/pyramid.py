@@ -10,11 +10,12 @@ are computed per level for the photometric Jacobian.
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Tuple
+from typing import Any, NamedTuple, Optional, Sequence, Tuple
 
+import jax
 import jax.numpy as jnp
 
-__all__ = ["Level", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
+__all__ = ["Level", "level_size", "flat_offset", "level_slice", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
            "num_levels_for"]
 
 
@@ -30,12 +31,56 @@ class Level(NamedTuple):
     weight: (h, w) in [0, 1], how far each pixel may be trusted as static scene (a user
     mask, a static-probability prior; 1 = fully, 0 = ignore); 2x2 block mean per level.
     It multiplies a reference pixel's weight everywhere it is used; a current frame's is unused.
+    size: None (the image fills the arrays), or for levels stacked by :func:`stack_padded`,
+    (3,) int32 (index, h, w), possibly traced: the arrays hold several levels along a leading
+    axis, each padded at the bottom and right (depth 0, weight 0), and this level is entry
+    ``index`` with an (h, w) image. Validity tests use (h, w); indexing the arrays' own shape.
+    (2-D arrays with a size: one such entry, ``index`` unused; see :func:`level_slice`.)
     """
     intensity: jnp.ndarray
     depth: jnp.ndarray
     igrad: jnp.ndarray
     dgrad: jnp.ndarray
     weight: jnp.ndarray
+    size: Optional[Any] = None
+
+
+def level_size(level: Level):
+    """(h, w) of the image of ``level``: Python ints, or traced int32 scalars for a stacked level."""
+    if level.size is None:
+        return level.depth.shape[-2:]
+    return level.size[1], level.size[2]
+
+
+def flat_offset(level: Level):
+    """Index of the level's first pixel in its (h, w) arrays flattened (0 unless stacked)."""
+    if level.size is None or level.depth.ndim == 2:
+        return 0
+    return level.size[0] * (level.depth.shape[1] * level.depth.shape[2])
+
+
+def level_slice(level: Level) -> Level:
+    """A stacked level's own entry: its (padded) 2-D arrays, the size kept (fields that are None stay None)."""
+    if level.depth.ndim == 2:
+        return level
+    return Level(*(None if x is None else x[level.size[0]] for x in level[:5]), level.size)
+
+
+def stack_padded(levels: Sequence[Level], fields: Sequence[str] = Level._fields[:5]) -> Level:
+    """Levels of different sizes as one Level whose arrays have a leading axis (one entry per
+    level), each padded with zeros at the bottom and right to the largest (h, w) among them, and
+    ``size`` (n, 3) int32 (index, h, w), so that ``jax.lax.scan`` over it runs one program for
+    all of them. Only ``fields`` are stacked (the others are None: what a reader does not need
+    is not copied)."""
+    H = max(l.depth.shape[0] for l in levels)
+    W = max(l.depth.shape[1] for l in levels)
+
+    def pad(x):
+        return jnp.pad(x, [(0, H - x.shape[0]), (0, W - x.shape[1])] + [(0, 0)] * (x.ndim - 2))
+
+    arrays = [jnp.stack([pad(getattr(l, f)) for l in levels]) if f in fields else None for f in Level._fields[:5]]
+    size = [(i,) + tuple(l.depth.shape) for i, l in enumerate(levels)]
+    return Level(*arrays, jnp.asarray(size, jnp.int32))
 
 
 def sanitize_depth(depth, max_depth, min_depth=0.0):

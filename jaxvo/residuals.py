@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from jaxvo.camera import Camera, backproject
 from jaxvo.geometry import transform_points
-from jaxvo.pyramid import Level
+from jaxvo.pyramid import Level, flat_offset, level_size
 
 __all__ = ["RefPoints", "Residuals", "reference_points", "select_points", "gather_points", "warp", "sample_bilinear",
            "sample_nearest", "residuals", "warp_jacobian", "photometric_terms", "rgbd_terms",
@@ -105,13 +105,16 @@ def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
 
 def gather_points(level: Level, camera: Camera, u_idx, v_idx) -> RefPoints:
     """RefPoints at integer pixel coordinates (any shape; clipped into the image)."""
-    h, w = level.depth.shape
+    h, w = level.depth.shape[-2:]
     ui = jnp.clip(u_idx, 0, w - 1)
     vi = jnp.clip(v_idx, 0, h - 1)
-    z = level.depth[vi, ui]
+
+    def at(x):  # a stacked level (jaxvo.pyramid.stack_padded) reads its own entry
+        return x[vi, ui] if x.ndim == 2 else x[level.size[0], vi, ui]
+    z = at(level.depth)
     uf, vf = ui.astype(jnp.float32), vi.astype(jnp.float32)
     P = backproject(camera, uf, vf, z)
-    return RefPoints(P, level.intensity[vi, ui], z > 0, uf, vf, jnp.where(z > 0, level.weight[vi, ui], 0.0))
+    return RefPoints(P, at(level.intensity), z > 0, uf, vf, jnp.where(z > 0, at(level.weight), 0.0))
 
 
 def warp(T_cur_ref, points, camera: Camera):
@@ -132,42 +135,46 @@ def _inside(u, v, h, w):
     return (u >= 0.0) & (u <= w - 1.0) & (v >= 0.0) & (v <= h - 1.0)
 
 
-def sample_bilinear(images, u, v):
+def sample_bilinear(images, u, v, offset=0):
     """Bilinear sampling of (h, w, C) ``images`` at float pixel coords (N,) -> (N, C).
 
     Coordinates outside the image are clamped; callers mask them with their own
-    inside test. Pixel centres at integers.
+    inside test. Pixel centres at integers. ``images`` may also be (n, h, w, C) levels stacked
+    by :func:`jaxvo.pyramid.stack_padded`, ``offset`` the sampled entry's first pixel
+    (:func:`jaxvo.pyramid.flat_offset`); there a point on the image's last row or column reads
+    the pad with weight 0: the same value.
     """
-    h, w = images.shape[:2]
+    h, w = images.shape[-3:-1]
     u0 = jnp.clip(jnp.floor(u), 0, w - 2)
     v0 = jnp.clip(jnp.floor(v), 0, h - 2)
     a = jnp.clip(u - u0, 0.0, 1.0)[:, None]
     b = jnp.clip(v - v0, 0.0, 1.0)[:, None]
-    flat = images.reshape(h * w, -1)
-    i00 = (v0 * w + u0).astype(jnp.int32)
+    flat = images.reshape(-1, images.shape[-1])
+    i00 = (v0 * w + u0).astype(jnp.int32) + offset
     top = flat[i00] * (1 - a) + flat[i00 + 1] * a
     bot = flat[i00 + w] * (1 - a) + flat[i00 + w + 1] * a
     return top * (1 - b) + bot * b
 
 
-def sample_nearest(image, u, v):
+def sample_nearest(image, u, v, offset=0):
     """Nearest-pixel sampling of (h, w) ``image`` at float coords (N,) -> (N,); clamped.
+    ``image`` (n, h, w) and ``offset``: a stacked level, as in :func:`sample_bilinear`.
 
     Used for depth: interpolating across a depth edge would invent surfaces.
     """
-    h, w = image.shape
+    h, w = image.shape[-2:]
     ui = jnp.clip(jnp.round(u), 0, w - 1).astype(jnp.int32)
     vi = jnp.clip(jnp.round(v), 0, h - 1).astype(jnp.int32)
-    return image.reshape(-1)[vi * w + ui]
+    return image.reshape(-1)[vi * w + ui + offset]
 
 
 def residuals(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera) -> Residuals:
     """Photometric and depth residuals of reference points warped into the current level."""
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w)
-    i_cur = sample_bilinear(cur.intensity[..., None], u, v)[:, 0]
-    d_cur = sample_nearest(cur.depth, u, v)
+    i_cur = sample_bilinear(cur.intensity[..., None], u, v, flat_offset(cur))[:, 0]
+    d_cur = sample_nearest(cur.depth, u, v, flat_offset(cur))
     r_int = jnp.where(valid, i_cur - ref.intensity, 0.0)
     valid_d = valid & (d_cur > 0)
     r_depth = jnp.where(valid_d, d_cur - Pc[:, 2], 0.0)
@@ -193,7 +200,7 @@ OCCLUSION_MARGIN = 0.05
 
 def _visible(Pc, u, v, cur: Level):
     """(N,) bool: not occluded in the current frame (unknown current depth counts as visible)."""
-    d = sample_nearest(cur.depth, u, v)
+    d = sample_nearest(cur.depth, u, v, flat_offset(cur))
     return ~((d > 0) & (d < Pc[:, 2] * (1.0 - OCCLUSION_MARGIN)))
 
 
@@ -207,10 +214,10 @@ def photometric_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera):
     (its depth there is nearer by more than ``OCCLUSION_MARGIN``): such a point is
     not visible, so its intensity says nothing about the pose.
     """
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
-    s = sample_bilinear(cur.igrad, u, v)
+    s = sample_bilinear(cur.igrad, u, v, flat_offset(cur))
     r = jnp.where(valid, s[:, 0] - ref.intensity, 0.0)
     Jw = warp_jacobian(Pc, camera)
     J = s[:, 1:2] * Jw[:, 0] + s[:, 2:3] * Jw[:, 1]
@@ -229,10 +236,16 @@ def rgbd_terms(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera, depth_weig
     into luminance-equivalent units (e.g. 30 / 0.05 = 600 makes the two
     RANSAC inlier thresholds equally strong).
     """
-    h, w = cur.intensity.shape
+    h, w = level_size(cur)
     Pc, u, v, in_front = warp(T_cur_ref, ref.points, camera)
     valid = ref.valid & in_front & _inside(u, v, h, w) & _visible(Pc, u, v, cur)
-    s = sample_bilinear(jnp.concatenate([cur.igrad, cur.dgrad], -1), u, v)
+    # two gathers, not one from the images concatenated: that concatenation is a copy of both
+    # images per evaluation (inside the solvers' loops), of every level for stacked levels
+    if cur.depth.ndim == 2:  # one gather of all seven channels
+        s = sample_bilinear(jnp.concatenate([cur.igrad, cur.dgrad], -1), u, v)
+    else:  # stacked levels: their concatenation would be a copy of every level per evaluation
+        s = jnp.concatenate([sample_bilinear(cur.igrad, u, v, flat_offset(cur)),
+                             sample_bilinear(cur.dgrad, u, v, flat_offset(cur))], -1)
     Jw = warp_jacobian(Pc, camera)
     r_i = jnp.where(valid, s[:, 0] - ref.intensity, 0.0)
     J_i = s[:, 1:2] * Jw[:, 0] + s[:, 2:3] * Jw[:, 1]
