@@ -136,31 +136,55 @@ def _resolve(arg, name, sub):
 
 # ----------------------------------------------------------------------------- sections
 
-def time_methods(sets, methods, repeats, key):
-    """Per method and pair set: compile time and per-pair timings over ``repeats`` passes."""
-    rows = []
+def time_methods_and_peers(sets, methods, peer_names, repeats, key):
+    """Per jaxvo method and per peer, per pair set: compile time and per-pair timings over
+    ``repeats`` passes. The passes are interleaved (pass 1 of every method and peer, then pass
+    2, ...), so that a load that other processes put on the machine for a minute weighs on
+    jaxvo and the peers alike: timed one after the other, the ratio to OpenCV swung from 0.93
+    to 1.27 between two runs 5 minutes apart. Returns (method rows, peer rows)."""
+    peers = []
+    for name in peer_names:
+        if common.peer_available(name):
+            peers.append(name)
+        else:
+            common.log(f"  {name}: not available, skipped")
+    secs = {(n, s): [] for n in list(methods) + peers for s in sets}
+    hyps = {key_: [] for key_ in secs}
+    fails = {key_: 0 for key_ in secs}
+    compile_s = {}
+    for rep in range(repeats):
+        for n in list(methods) + peers:
+            for set_name, (seq, frames, pairs) in sets.items():
+                if n in methods:
+                    r = common.run_method(n, frames, seq.camera, Config(), key, pairs, warmup=(rep == 0))
+                    hyps[n, set_name].append(r["hypotheses"])
+                else:
+                    r = common.run_method(n, frames, seq.camera, pairs=pairs, warmup=(rep == 0))
+                    fails[n, set_name] += int(np.sum(~r["valid"]))
+                if rep == 0:
+                    compile_s[n, set_name] = r.get("compile_s")
+                secs[n, set_name].append(r["seconds"])
+    mrows, prows = [], []
     for m in methods:
         for set_name, (seq, frames, pairs) in sets.items():
-            secs, hyps = [], []
-            compile_s = None
-            for rep in range(repeats):
-                r = common.run_method(m, frames, seq.camera, Config(), key, pairs, warmup=(rep == 0))
-                if rep == 0:
-                    compile_s = r["compile_s"]
-                secs.append(r["seconds"])
-                hyps.append(r["hypotheses"])
-            st = common.timing_stats(np.concatenate(secs))
-            hy = np.concatenate(hyps)
+            st = common.timing_stats(np.concatenate(secs[m, set_name]))
+            hy = np.concatenate(hyps[m, set_name])
+            comp = compile_s[m, set_name] if set_name == next(iter(sets)) else None
             paper = common.PAPER_FPS.get(m if m != "ransac" else f"ransac-{set_name}")
-            rows.append({"method": m, "set": set_name, "sequence": seq.name, "pairs": len(pairs),
-                         "compile_s": compile_s if set_name == next(iter(sets)) else None,
-                         "hypotheses_mean": float(hy.mean()) if m == "ransac" else None,
-                         "hypotheses_max": int(hy.max()) if m == "ransac" else None,
-                         "paper_fps": paper, **st, "peak_rss_mb": common.peak_rss_mb()})
+            mrows.append({"method": m, "set": set_name, "sequence": seq.name, "pairs": len(pairs),
+                          "compile_s": comp,
+                          "hypotheses_mean": float(hy.mean()) if m == "ransac" else None,
+                          "hypotheses_max": int(hy.max()) if m == "ransac" else None,
+                          "paper_fps": paper, **st, "peak_rss_mb": common.peak_rss_mb()})
             common.log(f"  {m:8s} {set_name:8s} median {st['median_ms']:.1f} ms  p90 {st['p90_ms']:.1f} ms  "
                        f"{st['fps']:.1f} FPS" + (f"  hyps {hy.mean():.1f}" if m == "ransac" else "")
-                       + (f"  compile {compile_s:.1f} s" if rows[-1]["compile_s"] else ""))
-    return rows
+                       + (f"  compile {comp:.1f} s" if comp else ""))
+    for name in peers:
+        for set_name in sets:
+            st = common.timing_stats(np.concatenate(secs[name, set_name]))
+            prows.append({"method": name, "set": set_name, "failures": fails[name, set_name], **st})
+            common.log(f"  {name:14s} {set_name:8s} median {st['median_ms']:.1f} ms  p90 {st['p90_ms']:.1f} ms")
+    return mrows, prows
 
 
 def time_levels(seq, frames, pairs, methods, repeats, key, quick: bool):
@@ -189,24 +213,6 @@ def time_levels(seq, frames, pairs, methods, repeats, key, quick: bool):
                          "level_ms": cum[lv][0] - coarser, "compile_s": cum[lv][1]})
             common.log(f"  {m:8s} level {lv} ({w}x{h}): through this level {cum[lv][0]:.1f} ms, "
                        f"this level {cum[lv][0] - coarser:.1f} ms")
-    return rows
-
-
-def time_peers(sets, peer_names, repeats):
-    rows = []
-    for name in peer_names:
-        if not common.peer_available(name):
-            common.log(f"  {name}: not available, skipped")
-            continue
-        for set_name, (seq, frames, pairs) in sets.items():
-            secs, fails = [], 0
-            for rep in range(repeats):
-                r = common.run_method(name, frames, seq.camera, pairs=pairs, warmup=(rep == 0))
-                secs.append(r["seconds"])
-                fails += int(np.sum(~r["valid"]))
-            st = common.timing_stats(np.concatenate(secs))
-            rows.append({"method": name, "set": set_name, "failures": fails, **st})
-            common.log(f"  {name:14s} {set_name:8s} median {st['median_ms']:.1f} ms  p90 {st['p90_ms']:.1f} ms")
     return rows
 
 
@@ -545,12 +551,10 @@ def main(argv=None) -> Path:
     sets = {"static": static, "dynamic": dynamic}
     rss_start = common.peak_rss_mb()
 
-    common.log("[speed] methods")
-    mrows = time_methods(sets, args.methods, args.repeats, key)
+    common.log("[speed] methods and peers (interleaved passes)")
+    mrows, prows = time_methods_and_peers(sets, args.methods, args.peer_list, args.repeats, key)
     common.log("[speed] per level (static pairs)")
     lrows = time_levels(*static, args.level_methods, args.repeats, key, args.quick) if args.level_methods else []
-    common.log("[speed] peers")
-    prows = time_peers(sets, args.peer_list, args.repeats)
     common.log("[speed] stages")
     srows = []
     for m in args.stages:
@@ -582,7 +586,8 @@ def main(argv=None) -> Path:
                   "compare the ratios to the peers measured in the same run.", ""]
     lines += [
         f"Pairs: {len(static[2])} static ({static[0].name}) and {len(dynamic[2])} dynamic ({dynamic[0].name}) "
-        f"consecutive pairs spread over each sequence, decoded into memory first; each timed {args.repeats}x. "
+        f"consecutive pairs spread over each sequence, decoded into memory first; each timed {args.repeats}x, "
+        "in passes that alternate between the jaxvo methods and the peers (so a passing load weighs on both). "
         "A time is the wall time of one `estimate_motion` call including the host-to-device copy of both "
         "frames, blocked until the result is ready (`jax.block_until_ready`), after compilation; peers "
         "likewise include their input conversion and frame preparation. Compile: the first call (trace + "
