@@ -75,6 +75,9 @@ def parse_args(argv=None):
                     help="comma list of real TUM sequence folders to run too, each as its dynamic augmentation "
                          "(jaxvo.synthetic.augment: 2 persons, 30 %% coverage, the seed; real frames, real ground "
                          "truth, exact masks); 'tum' = every sequence under data_root()/tum")
+    ap.add_argument("--policy", default=None,
+                    help="JSON object of jaxvo.TrackConfig fields changed in the default's policy "
+                         "(e.g. '{\"restart\": 9}')")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences.md",
                     help="markdown output (json next to it, figures in <stem>/)")
@@ -88,6 +91,11 @@ def parse_args(argv=None):
     if bad:
         ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(SEQUENCES)}")
     a.augment = _augment_list(a.augment, ap)
+    try:
+        a.policy_obj = TrackConfig.from_json(a.policy) if a.policy else TrackConfig()
+        a.policy_obj.validate()
+    except (ValueError, TypeError) as e:
+        ap.error(f"--policy: {e}")
     a.methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     bad = [m for m in a.methods if m not in METHODS + ("default",)]
     if bad:
@@ -149,7 +157,7 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
             "est_angle": float(np.degrees(geometry.rotation_angle(est_rel[:3, :3])))}
 
 
-def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
+def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates."""
@@ -171,7 +179,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
         last[0] = now
 
     t0 = time.perf_counter()
-    tr = track(frames, cam, Config(), key, policy=TrackConfig(), callback=on_step)
+    tr = track(frames, cam, Config(), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
     tp, fp, fn, tn = (int(c) for c in counts)
     return {"relative": tr.relative, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
@@ -180,10 +188,11 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key) -> dict:
             "shown": shown[0]}
 
 
-def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key) -> dict:
+def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
+            policy: Optional[TrackConfig] = None) -> dict:
     """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts."""
     if method == "default":
-        return run_default(seq, frames, true_masks, key)
+        return run_default(seq, frames, true_masks, key, policy)
     cam = seq.camera
     cfg = Config(method=method)
     P = len(frames) - 1
@@ -268,7 +277,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         runs = {}
         for method in a.methods:
             common.log(f"{name}: {method} on {len(frames) - 1} pairs")
-            r = run_one(seq, frames, true, method, key)
+            r = run_one(seq, frames, true, method, key, a.policy_obj)
             runs[method] = r
             ev = common.evaluate(seq, r["relative"])
             dr = end_drift(seq, trajectory.chain(r["relative"]))

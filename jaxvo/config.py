@@ -296,9 +296,11 @@ class TrackConfig(NamedTuple):
       no longer overlaps the view. Bonn crowd, seeds 0-11 (``experiments/keyframes.py --policy
       '{"restart": 9}'``, experiments/results/policy_restart9.md): 9 frames RPE 1 s 0.063 m/s,
       ATE 0.047 m, 1.44 deg/s, 20 failed frames; 24 frames 0.065, 0.047, 1.61, 28; 6 frames
-      (seeds 0-5, a scratch run) 0.078. Within the seed-to-seed spread (0.034-0.089 m/s), and
-      untested on the synthetic sequences, so the default stays 24 (``keyframes``: 4 x
-      max_gap, as before this field).
+      (seeds 0-5, a scratch run) 0.078. Within the seed-to-seed spread (0.034-0.089 m/s); on the
+      synthetic sequences restart 9 leaves the trajectories as they are but lowers handheld-fast's
+      moving-mask recall from 0.835 to 0.746 (``experiments/paper_sequences.py --methods default
+      --policy '{"restart": 9}'``, experiments/results/paper_sequences_restart9.md), so the
+      default stays 24 (``keyframes``: 4 x max_gap, as before this field).
     """
     max_gap: int = 6
     lag: int = 3
