@@ -140,6 +140,12 @@ def test_paper_sequences_augmented_real_sequence(tmp_path):
     assert "Dynamic augmentations (freiburg2_desk)" in text and "Synthetic sequences (" not in text
 
 
+def test_paper_sequences_policy_is_checked(capsys):
+    with pytest.raises(SystemExit) as e:
+        _script("paper_sequences").main(["--quick", "--policy", '{"restrt": 9}'])
+    assert e.value.code == 2 and "did you mean 'restart'" in capsys.readouterr().err
+
+
 def test_keyframes_small(tmp_path):
     _require(STATIC)
     out = tmp_path / "kf.md"
