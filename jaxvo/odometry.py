@@ -660,7 +660,7 @@ class Odometry:
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
             return None
-        T_world_ref = self._anchor.get(self._ref, self.poses[self._ref])
+        T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
         trust = _trust(self._L, tuple(frame.depth.shape)) if self.policy.segment else None
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
@@ -674,7 +674,7 @@ class Odometry:
         update the policy and segmentation; returns the frame's :class:`TrackStep`."""
         j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.trust
         policy, ref, poses = self.policy, self._ref, self.poses
-        T_world_ref = self._anchor.get(ref, poses[ref])
+        T_world_ref = self._chain_pose(ref)
         T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights)
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
@@ -749,7 +749,7 @@ class Odometry:
             return pose
         T_parent_new = geometry.fit_motion(np.array(fs) - parent, geometry.inverse(np.stack([self._rel[f] for f in fs])),
                                            new - parent)
-        return self._anchor.get(parent, self.poses[parent]) @ T_parent_new
+        return self._chain_pose(parent) @ T_parent_new
 
     def _fused_anchor(self, new: int, j: int) -> np.ndarray:
         """The pose later frames chain from when ``new`` becomes the reference.
@@ -761,7 +761,7 @@ class Odometry:
         parent = self.references[new - 1]
         if not self.policy.fuse or parent == old or new <= old:
             return pose
-        T_world_old = self._anchor.get(old, self.poses[old])
+        T_world_old = self._chain_pose(old)
         weights = _trust(self._L, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
         _, T, _, _, valid = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose, weights)
@@ -797,13 +797,13 @@ class Odometry:
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
-        P = dict(enumerate(self.poses))   # the poses the map's votes use: anchors where set
-        P.update(self._anchor)
-        P[new] = self._fused_anchor(new, j)
-        self._anchor[new] = P[new]
+        self._anchor[new] = self._fused_anchor(new, j)
         self._ref = new
         if not self.policy.segment:
             return
+        # the poses the map's votes use: anchors where set (looked up per voter, not a copy of
+        # every pose so far: in the calm mode this runs every frame)
+        T_world_new = self._chain_pose(new)
         # voters: earlier frames at offsets 2, 4, 8, ... and every frame after the new
         # reference up to the current one (all with successful estimates)
         earlier = [new - (2 << k) for k in range(self.policy.history)]
@@ -814,16 +814,21 @@ class Odometry:
         # padded to one of two sizes: in the calm mode the voters are the 4 earlier frames, and
         # voting for 12 views (8 of them padding) would cost 3x as much
         n = _FEW_VIEWS if len(voters) <= _FEW_VIEWS else _VIEWS
-        mds = np.zeros((n,) + shape, np.float32)
+        pad = [jnp.zeros(shape, jnp.float32)] * (n - len(voters))
+        mds = jnp.stack([self._depths[i] for i in voters] + pad)   # stays on the device
         Ts = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
         ok = np.zeros(n, bool)
         for k, i in enumerate(voters):
-            mds[k] = np.asarray(self._depths[i])
-            Ts[k] = geometry.inverse(P[i]) @ P[new]
+            Ts[k] = geometry.inverse(self._chain_pose(i)) @ T_world_new
             ok[k] = True
-        T_old_new = (geometry.inverse(P[old]) @ P[new]).astype(np.float32)
+        T_old_new = (geometry.inverse(self._chain_pose(old)) @ T_world_new).astype(np.float32)
         self._L = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
                                      self._map_cam, self.params)
+
+    def _chain_pose(self, i: int) -> np.ndarray:
+        """T_world_cam that frames estimated against frame i chain from: its anchor (fused and
+        smoothed when it became a reference) where set, else its own pose."""
+        return self._anchor.get(i, self.poses[i])
 
     def result(self) -> "Track":
         """The :class:`Track` of the frames added so far."""
