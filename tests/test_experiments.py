@@ -146,6 +146,19 @@ def test_paper_sequences_policy_is_checked(capsys):
     assert e.value.code == 2 and "did you mean 'restart'" in capsys.readouterr().err
 
 
+def test_exposure_at_the_true_pose(tmp_path):
+    """A consecutive pair of the empty room: most pixels agree in depth at the true pose, with no
+    exposure offset to speak of."""
+    _require(DYNAMIC)
+    out = tmp_path / "exposure.md"
+    _script("exposure").main([str(DYNAMIC), "--pairs", "0-1", "--out", str(out)])
+    (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert row["pair"] == "0->1" and row["depth_agree"] > 0.5 and abs(row["lum_offset"]) < 5 and row["lum_ok"] > 0.8
+    assert row["err_mm_none"] < 30 and row["valid_none"]
+    with pytest.raises(SystemExit):
+        _script("exposure").main([str(DYNAMIC), "--pairs", "0-900", "--out", str(out)])
+
+
 def test_keyframes_small(tmp_path):
     _require(STATIC)
     out = tmp_path / "kf.md"
