@@ -24,6 +24,7 @@ Writes ``experiments/results/paper_sequences.md`` and ``.json`` and the figures 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -68,6 +69,9 @@ def parse_args(argv=None):
                     help="comma list of classic, huber, ransac (every consecutive pair, the paper's protocol) "
                          "and default (jaxvo's default odometry: ransac with segmented keyframes, jaxvo.track)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the scenes and of RANSAC")
+    ap.add_argument("--seeds", default=None,
+                    help="comma list of seeds, each a full run (scenes, augmentations and RANSAC), with a table "
+                         "of the mean and range over them; figures and notes are of the first (default: --seed)")
     ap.add_argument("--sensor", dest="sensor", action="store_true", default=True,
                     help="Kinect-like sensor effects (default)")
     ap.add_argument("--no-sensor", dest="sensor", action="store_false", help="exact renders")
@@ -78,6 +82,9 @@ def parse_args(argv=None):
     ap.add_argument("--policy", default=None,
                     help="JSON object of jaxvo.TrackConfig fields changed in the default's policy "
                          "(e.g. '{\"restart\": 9}')")
+    ap.add_argument("--config", default=None,
+                    help="JSON object of jaxvo.Config fields applied to every method, the default included "
+                         "(e.g. '{\"ransac_finest\": 2}')")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences.md",
                     help="markdown output (json next to it, figures in <stem>/)")
@@ -96,6 +103,20 @@ def parse_args(argv=None):
         a.policy_obj.validate()
     except (ValueError, TypeError) as e:
         ap.error(f"--policy: {e}")
+    try:
+        a.config = json.loads(a.config) if a.config else {}
+        if not isinstance(a.config, dict):
+            raise ValueError("expected a JSON object")
+        Config.from_json({**a.config, "method": "ransac"}).validate()
+    except (ValueError, TypeError) as e:
+        ap.error(f"--config: {e}")
+    try:
+        a.seed_list = [int(x) for x in a.seeds.split(",") if x.strip()] if a.seeds else [a.seed]
+    except ValueError:
+        ap.error(f"--seeds: expected a comma list of integers, got {a.seeds!r}")
+    if not a.seed_list:
+        ap.error("--seeds: no seed given")
+    a.seed = a.seed_list[0]
     a.methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     bad = [m for m in a.methods if m not in METHODS + ("default",)]
     if bad:
@@ -157,7 +178,8 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
             "est_angle": float(np.degrees(geometry.rotation_angle(est_rel[:3, :3])))}
 
 
-def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None) -> dict:
+def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
+                config: Optional[dict] = None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates."""
@@ -179,7 +201,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
         last[0] = now
 
     t0 = time.perf_counter()
-    tr = track(frames, cam, Config(), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
+    tr = track(frames, cam, Config.from_json(config or {}), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
     tp, fp, fn, tn = (int(c) for c in counts)
     return {"relative": tr.relative, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
@@ -189,12 +211,13 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
 
 
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
-            policy: Optional[TrackConfig] = None) -> dict:
-    """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts."""
+            policy: Optional[TrackConfig] = None, config: Optional[dict] = None) -> dict:
+    """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts.
+    config: Config fields changed from their defaults (every method)."""
     if method == "default":
-        return run_default(seq, frames, true_masks, key, policy)
+        return run_default(seq, frames, true_masks, key, policy, config)
     cam = seq.camera
-    cfg = Config(method=method)
+    cfg = Config.from_json({**(config or {}), "method": method})
     P = len(frames) - 1
     rel = np.zeros((P, 4, 4))
     secs = np.zeros(P)
@@ -248,25 +271,54 @@ def figures(name: str, seq: TumSequence, runs: Dict[str, dict], fig_dir: Path, f
     return out
 
 
+def _seeds_text(seeds: List[int]) -> str:
+    return str(seeds[0]) if len(seeds) == 1 else f"each of {', '.join(map(str, seeds))}"
+
+
+SUMMARY_COLUMNS = ("sequence", "method", "seeds", "RPE 1 s m/s", "RPE 1 s deg/s", "ATE m", "mask P", "mask R")
+
+
+def seed_summary(rows: List[dict]) -> List[dict]:
+    """Per (sequence, method): mean (min - max) over the seeds of the rows' main measures."""
+    out = []
+    for key in dict.fromkeys((r["sequence"], r["method"]) for r in rows):
+        group = [r for r in rows if (r["sequence"], r["method"]) == key]
+
+        def cell(field, fmt):
+            v = [r[field] for r in group if r.get(field) is not None]
+            return "n/a" if not v else f"{np.mean(v):{fmt}} ({min(v):{fmt}} - {max(v):{fmt}})"
+
+        out.append({"sequence": key[0], "method": key[1], "seeds": str(len(group)),
+                    "RPE 1 s m/s": cell("rpe1s_t", ".4f"), "RPE 1 s deg/s": cell("rpe1s_r", ".2f"),
+                    "ATE m": cell("ate", ".4f"), "mask P": cell("mask_precision", ".3f"),
+                    "mask R": cell("mask_recall", ".3f")})
+    return out
+
+
 def main(argv: Optional[Sequence[str]] = None) -> dict:
     a = parse_args(argv)
     argv_list = list(sys.argv[1:] if argv is None else argv)
     t_start = time.perf_counter()
-    key = jax.random.key(a.seed)
     fig_dir = a.out.parent / a.out.stem
     rows: List[dict] = []
     figs: Dict[str, Dict[str, str]] = {}
     notes: List[str] = []
-    jobs = [(name, lambda name=name: synthetic_sequence(name, a.frames, a.size, a.seed, a.sensor, a.cache),
-             DEFAULT.at_level(SIZES[a.size])) for name in a.sequences]
-    jobs += [(f"{common.short_name(p)}+persons", lambda p=p: common.augmented_sequence(
-        p, persons=2, coverage=0.3, seed=a.seed, max_frames=a.frames, cache_dir=a.cache), None) for p in a.augment]
-    for name, make, camera in jobs:
+    jobs = []
+    for seed in a.seed_list:
+        jobs += [(name, seed, lambda name=name, seed=seed: synthetic_sequence(name, a.frames, a.size, seed, a.sensor,
+                                                                               a.cache),
+                  DEFAULT.at_level(SIZES[a.size])) for name in a.sequences]
+        jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
+            p, persons=2, coverage=0.3, seed=seed, max_frames=a.frames, cache_dir=a.cache), None) for p in a.augment]
+    for name, seed, make, camera in jobs:
+        key = jax.random.key(seed)
+        first = seed == a.seed_list[0]
         try:
             d = make()
         except common.datasets.DatasetError as e:   # e.g. ground truth that starts after the first frame
             common.log(f"{name}: skipped, cannot augment: {e}")
-            notes.append(f"* **{name}**: skipped, cannot augment: {e}")
+            if first:
+                notes.append(f"* **{name}**: skipped, cannot augment: {e}")
             continue
         seq = TumSequence(d, camera=camera)   # an augmentation: the real sequence's preset
         frames = common.load_frames(seq)
@@ -276,13 +328,14 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         cover = float(np.mean([m.mean() for m in true]))
         runs = {}
         for method in a.methods:
-            common.log(f"{name}: {method} on {len(frames) - 1} pairs")
-            r = run_one(seq, frames, true, method, key, a.policy_obj)
+            common.log(f"{name} (seed {seed}): {method} on {len(frames) - 1} pairs")
+            r = run_one(seq, frames, true, method, key, a.policy_obj, a.config)
             runs[method] = r
             ev = common.evaluate(seq, r["relative"])
             dr = end_drift(seq, trajectory.chain(r["relative"]))
             ts = common.timing_stats(r["seconds"])
-            rows.append({"sequence": name, "frames": len(frames), "method": method, "moving_pct": 100 * cover,
+            rows.append({"sequence": name, "seed": seed, "frames": len(frames), "method": method,
+                         "moving_pct": 100 * cover,
                          **ev, "rpef_t_mm": None if ev["rpef_t"] is None else 1000 * ev["rpef_t"],
                          **dr, "drift_t_cm": None if dr["drift_t"] is None else 100 * dr["drift_t"],
                          "fps": ts["fps"], "median_ms": ts["median_ms"], "compile_s": r["compile_s"],
@@ -290,9 +343,11 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                          "mask_precision": r["mask"]["precision"], "mask_recall": r["mask"]["recall"],
                          "mask_iou": r["mask"]["iou"], "mask_counts": {k: r["mask"][k] for k in "tp fp fn tn".split()},
                          "per_pair_trans_m": common.relative_errors(seq, r["relative"])["trans"]})
+        if not first:
+            continue
         figs[name] = figures(name, seq, runs, fig_dir, frames, true)
         dur = float(seq.timestamps[-1] - seq.timestamps[0])
-        by = {r["method"]: r for r in rows if r["sequence"] == name}
+        by = {r["method"]: r for r in rows if r["sequence"] == name and r["seed"] == seed}
         if name == "seq1" and by:
             notes.append("* **seq1** (camera fixed): drift of the last frame " + "; ".join(
                 f"{m} {by[m]['drift_t_cm']:.1f} cm / {by[m]['drift_r']:.2f} deg" for m in by
@@ -310,11 +365,11 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         "Paper sequences (synthetic, exact ground truth): classic vs Huber vs RANSAC",
         __file__, argv_list,
         extra=(f"Synthetic sequences ({', '.join(a.sequences)}): {a.frames} frames each at {a.size}, 30 Hz, "
-               f"seed {a.seed}, {'Kinect-like sensor effects' if a.sensor else 'exact renders'}, from "
+               f"seed {_seeds_text(a.seed_list)}, {'Kinect-like sensor effects' if a.sensor else 'exact renders'}, from "
                f"`jaxvo.synthetic.generate`. " if a.sequences else "")
               + (f"Dynamic augmentations ({', '.join(common.short_name(p) for p in a.augment)}): the real frames "
                  f"(at most {a.frames}) with 2 synthetic persons covering ~30 % of the image composited in "
-                 f"(`jaxvo.synthetic.augment`, seed {a.seed}), the real ground truth and exact masks. "
+                 f"(`jaxvo.synthetic.augment`, seed {_seeds_text(a.seed_list)}), the real ground truth and exact masks. "
                  if a.augment else "") + "Total wall time {WALL} s.")
     lines += ["RPE per frame: RMSE translational (mm/frame) and rotational (deg/frame) error of consecutive "
               "pairs; RPE 1 s: drift in m/s and deg/s (n/a when the run is shorter than 1 s); ATE: RMSE (m) "
@@ -323,13 +378,18 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
               "(outliers not hidden by something in front in the current frame, plus the segmentation's "
               "dynamic pixels; jaxvo.mapping.moving_mask) against the true moving-pixel mask, pooled over "
               "all pairs, over the pixels where the residuals are defined.", ""]
-    cols = [("sequence", "sequence", "s"), ("frames", "frames", "d"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),
+    cols = [("sequence", "sequence", "s")] + ([("seed", "seed", "d")] if len(a.seed_list) > 1 else []) + [
+            ("frames", "frames", "d"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),
             ("RPE mm/frame", "rpef_t_mm", ".2f"), ("RPE deg/frame", "rpef_r", ".3f"),
             ("RPE 1 s m/s", "rpe1s_t", ".4f"), ("RPE 1 s deg/s", "rpe1s_r", ".3f"), ("ATE m", "ate", ".4f"),
             ("drift cm", "drift_t_cm", ".2f"), ("drift deg", "drift_r", ".2f"), ("FPS", "fps", ".1f"),
             ("inlier ratio", "inlier_ratio", ".3f"), ("mask P", "mask_precision", ".3f"),
             ("mask R", "mask_recall", ".3f"), ("mask IoU", "mask_iou", ".3f")]
     lines += common.md_table(rows, cols) + [""]
+    if len(a.seed_list) > 1:
+        lines += [f"## Mean and range over the {len(a.seed_list)} seeds", "",
+                  "Each cell: mean (min - max) over the seeds above; mask P / R pooled per seed.", ""]
+        lines += common.md_table(seed_summary(rows), [(c, c, "s") for c in SUMMARY_COLUMNS]) + [""]
     lines += ["## What the paper reported", "", PAPER_NOTES, "", "## What jaxvo gets here", ""]
     lines += (notes or ["* (seq1 / seq2 not in this run)"]) + [""]
     if a.frames < 30:
@@ -343,7 +403,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     wall = time.perf_counter() - t_start
     lines = [ln.replace("{WALL}", f"{wall:.0f}") for ln in lines]
     data = {"command": common.command_line(__file__, argv_list), "machine": common.machine_info(),
-            "frames": a.frames, "size": a.size, "seed": a.seed, "sensor": a.sensor, "wall_s": wall,
+            "frames": a.frames, "size": a.size, "seed": a.seed, "seeds": a.seed_list, "sensor": a.sensor, "wall_s": wall,
             "rows": rows, "figures": figs, "paper": PAPER_NOTES}
     common.write_outputs(a.out, lines, data)
     common.log(f"wrote {a.out} ({wall:.0f} s)")

@@ -19,6 +19,13 @@ __all__ = ["METHODS", "Config", "TrackConfig"]
 
 METHODS = ("classic", "huber", "ransac")
 
+#: ``Config.blocks`` where it is None, per method: one reference pixel per b x b tile at
+#: levels 0, 1, 2, 3 (finest first). Classic and Huber take coarser tiles than RANSAC: they cost
+#: BLK_SPEED and measured as accurate (BLK_ACC); RANSAC's default tracking keeps
+#: (4, 2, 1, 1), because (4, 4, 2, 1) lowered the moving-mask precision / recall on the
+#: synthetic handheld-fast sequence from 0.86 / 0.84 to 0.67 / 0.73.
+METHOD_BLOCKS = {"classic": (4, 4, 2, 1), "huber": (4, 4, 2, 1), "ransac": (4, 2, 1, 1)}
+
 
 @dataclasses.dataclass(frozen=True)
 class Config:
@@ -51,10 +58,15 @@ class Config:
     refine_rounds: *static*, RANSAC consensus -> refine rounds per level.
     ransac_finest: *static*, the finest level on which RANSAC (the prior fit, the hypotheses)
       runs; each finer level only refines on the consensus set of the pose carried up from the
-      coarser level (0: RANSAC on every level, the paper).
+      coarser level (0: RANSAC on every level, the paper). Default 1: level 0's hypotheses
+      (54-pixel fits at 640x480) rarely beat the pose carried up from level 1, and dropping
+      them saves about a fifth of a dynamic pair's time at no accuracy lost beyond the
+      seed-to-seed spread (numbers under prior_candidate; experiments/results/ransac_finest*.md
+      and augmented_*.md).
     blocks: *static*, per level (index 0 = finest): the refinement uses one reference
       pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
-      pixel). The current image is always sampled at that level's full resolution.
+      pixel). The current image is always sampled at that level's full resolution. None
+      (default): the method's own, :data:`METHOD_BLOCKS` (see :meth:`level_blocks`).
       Missing entries mean 1.
     max_score_pixels: *static*, RANSAC scores hypotheses on at most about this many
       reference pixels per level (a regular subgrid); the paper scores all pixels.
@@ -68,7 +80,17 @@ class Config:
     prior_candidate: *static*, the pose RANSAC scores first and starts every hypothesis
       from: "raw" (the previous level's result as it is) or "refined" (that pose after a
       plain least-squares fit of this level): where the scene is mostly static the
-      refined pose is the best candidate, and sampled patches rarely beat it.
+      refined pose is the best candidate, and sampled patches rarely beat it; "both"
+      (default): the refined pose, with the raw one scored beside it, because a mover can drag
+      the plain fit away (on the synthetic pair of tests/test_odometry.py, with ransac_finest=1:
+      2.2 mm with "both", 14.8 mm with "refined"). Default tracking, 12 seeds each, mean
+      (``experiments/keyframes.py BONN --gaps default --methods ransac --seeds 0,...,11`` and
+      ``experiments/paper_sequences.py --sequences '' --augment tum --methods default --seeds
+      0,...,11``, each with ``--config``): Bonn crowd RPE 1 s / ATE, fr2_desk + 2 synthetic
+      persons ATE: ransac_finest=1 "both" 0.064 m/s / 0.045 m, 0.054 m; ransac_finest=0
+      "both" 0.069 / 0.049, 0.053; 0 "refined" (the previous default) 0.066 / 0.049, 0.057; 1
+      "refined" augmented 0.061. Seed-to-seed spread: 0.033-0.079 m/s on Bonn, 0.010-0.11 m
+      on the augmentation.
     consensus_weights: *static*, the RANSAC refinement on the consensus set: "binary"
       (least squares on the inliers, the paper) or "huber" (Huber IRLS on the inliers,
       which also discounts the moving pixels that happen to pass the thresholds).
@@ -115,8 +137,8 @@ class Config:
     irls_rounds: int = 2
     irls_iterations: int = 2
     refine_rounds: int = 1
-    ransac_finest: int = 0
-    blocks: Tuple[int, ...] = (4, 2, 1, 1)
+    ransac_finest: int = 1
+    blocks: Optional[Tuple[int, ...]] = None
     max_score_pixels: int = 10000
     depth_weight: Any = 600.0
     terms: str = "photometric"
@@ -124,7 +146,7 @@ class Config:
     scoring: str = "msac"
     score_selection: str = "grid"
     consensus_weights: str = "huber"
-    prior_candidate: str = "refined"
+    prior_candidate: str = "both"
     min_depth_agreement: Any = 0.35
     min_photometric_agreement: Any = 0.65
     sample_gate: Any = 0.0
@@ -136,9 +158,10 @@ class Config:
         """The seed paper's algorithm as published: hypotheses fitted on the photometric
         residual only, ranked by inlier count, scored on every pixel of every level, and
         every pixel used in the refinement, plain least squares on the consensus set.
-        The defaults differ from it in these six places (measured to be more accurate or faster; see the README)."""
+        RANSAC runs on every level. The defaults differ from it in these seven places (measured to be
+        more accurate or faster; see the README)."""
         return cls(method=method, hypothesis_terms="photometric", scoring="count", consensus_weights="binary",
-                   prior_candidate="raw",
+                   prior_candidate="raw", ransac_finest=0,
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
     @classmethod
@@ -161,6 +184,10 @@ class Config:
         """A validated Config from :meth:`to_json`'s output (a JSON string or an already parsed dict).
         Missing fields keep their defaults; unknown fields or invalid values raise ValueError."""
         return _from_json(cls, text, [f.name for f in dataclasses.fields(cls)])
+
+    def level_blocks(self) -> Tuple[int, ...]:
+        """``blocks``, or the method's own where it is None."""
+        return tuple(self.blocks) if self.blocks is not None else METHOD_BLOCKS[self.method]
 
     def validate(self) -> None:
         """Raise ValueError naming the first field whose value breaks its rule in ``_RULES``
@@ -191,7 +218,7 @@ _RULES = {
     "irls_iterations": integer(1),
     "refine_rounds": integer(1),
     "ransac_finest": integer(0),
-    "blocks": positive_ints(),
+    "blocks": positive_ints(none_means="the method's own, METHOD_BLOCKS"),
     "max_score_pixels": integer(1),
     "depth_weight": real(0, lo_open=True),
     "terms": choice("photometric", "rgbd"),
@@ -199,7 +226,7 @@ _RULES = {
     "scoring": choice("count", "msac"),
     "score_selection": choice("grid", "gradient"),
     "consensus_weights": choice("binary", "huber"),
-    "prior_candidate": choice("raw", "refined"),
+    "prior_candidate": choice("raw", "refined", "both"),
     "min_depth_agreement": real(0, 1),
     "min_photometric_agreement": real(0, 1),
     "sample_gate": real(0),

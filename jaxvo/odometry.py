@@ -91,7 +91,8 @@ def _levels(config: Config, width: int, height: int) -> int:
 
 
 def _block(config: Config, level: int) -> int:
-    return int(config.blocks[level]) if level < len(config.blocks) else 1
+    blocks = config.level_blocks()
+    return int(blocks[level]) if level < len(blocks) else 1
 
 
 def _score_stride(level, config: Config) -> int:
@@ -191,7 +192,8 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
         iters = sol.iterations
     else:
         if ransac:  # finer levels: refine the carried-up consensus only
-            if config.prior_candidate == "refined":  # a plain fit: the written-out LM (jaxopt's iterates)
+            T_carried = T if config.prior_candidate == "both" else None
+            if config.prior_candidate != "raw":  # a plain fit: the written-out LM (jaxopt's iterates)
                 T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
             rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
                               jax.random.fold_in(key, level),
@@ -202,7 +204,7 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
                               scoring=config.scoring, offset=offset,
-                              cdf=_sampling_cdf(ref_l, cur_l, cam, T, config))
+                              cdf=_sampling_cdf(ref_l, cur_l, cam, T, config), T_other=T_carried)
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)

@@ -120,7 +120,8 @@ class RansacResult(NamedTuple):
 def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, score_ref: RefPoints, key, *,
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
                  max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
-                 depth_weight=None, scoring: str = "count", cdf=None, offset=0.0) -> RansacResult:
+                 depth_weight=None, scoring: str = "count", cdf=None, offset=0.0,
+                 T_other=None) -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
@@ -133,7 +134,9 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     hypothesis that aligns its inliers more tightly. The inlier ratio's
     denominator is the number of scoring points with valid reference depth. cdf: the
     :func:`sampling_cdf` to draw sample centres from (default the level's). offset: added to
-    the luminance of the sampled reference pixels (see :func:`fit_hypothesis`).
+    the luminance of the sampled reference pixels (see :func:`fit_hypothesis`). T_other: an
+    optional further (4, 4) candidate, scored beside T_init before any hypothesis (the pose a
+    plain fit started from, which a moving object may have dragged T_init away from).
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
@@ -167,6 +170,11 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
 
     cdf = sampling_cdf(ref_level, radius) if cdf is None else cdf  # once per level, not once per batch
     q0, c0 = score(T_init)
-    state = (jnp.int32(0), T_init, q0, c0, jnp.int32(0))
+    T0 = T_init
+    if T_other is not None:
+        q1, c1 = score(T_other)
+        better = q1 > q0
+        T0, q0, c0 = jnp.where(better, T_other, T0), jnp.where(better, q1, q0), jnp.where(better, c1, c0)
+    state = (jnp.int32(0), T0, q0, c0, jnp.int32(0))
     _, T_best, _, best_count, evaluated = jax.lax.while_loop(cond, body, state)
     return RansacResult(T_best, best_count / n_ref, evaluated)

@@ -59,8 +59,8 @@ def choice(*values) -> Rule:
     return Rule("choice", choices=tuple(values))
 
 
-def positive_ints() -> Rule:
-    return Rule("ints", lo=1)
+def positive_ints(none_means: str = "") -> Rule:
+    return Rule("ints", lo=1, none=bool(none_means), none_means=none_means)
 
 
 def flag() -> Rule:

@@ -191,6 +191,30 @@ def test_ransac_level(level_pair):
     assert d_id < np.linalg.norm(G.log(G.inverse(T_TRUE)))
 
 
+def test_second_candidate_is_kept_when_it_scores_better(level_pair):
+    """T_other (the pose carried up from the coarser level, which a mover may have dragged the
+    plain fit away from) is scored beside T_init: with no hypotheses drawn, the better of the
+    two is returned, whichever argument it came in as; hypotheses still start from T_init."""
+    ref, cur, pts = level_pair
+    key = jax.random.key(0)
+    good = jnp.asarray(T_TRUE, jnp.float32)
+    bad = jnp.asarray(G.exp(np.array([0.0, 0.0, 0.0, 0.05, 0.0, 0.0])) @ T_TRUE, jnp.float32)
+
+    @jax.jit
+    def run(T_init, T_other):
+        return ransac_level(T_init, ref, cur, CAM, pts, key, p=0.99, w=0.3, thresh_lum=30.0,
+                            thresh_depth=0.05, early_exit_ratio=0.9, n=6, radius=1, max_hypotheses=0,
+                            batch_size=4, hypothesis_iterations=8, scoring="msac", T_other=T_other)
+
+    for T_init, T_other in ((bad, good), (good, bad)):
+        r = run(T_init, T_other)
+        assert int(r.hypotheses) == 0
+        np.testing.assert_array_equal(np.asarray(r.T), np.asarray(good))
+    # and without it, the start is all there is
+    alone = run(bad, None)
+    np.testing.assert_array_equal(np.asarray(alone.T), np.asarray(bad))
+
+
 def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
     """A level padded and stacked with larger ones (jaxvo.pyramid.stack_padded, for the scan over
     levels) draws the same patch pixels for the same key (the k-th drawable pixel is the same
