@@ -195,6 +195,27 @@ def paper_rpe(path) -> Optional[float]:
 
 # ----------------------------------------------------------------------------- running
 
+def int_list(text: str) -> List[int]:
+    """``"0,1,2"`` -> ``[0, 1, 2]``; ValueError on a non-integer or an empty list."""
+    try:
+        values = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"expected a comma list of integers, got {text!r}") from None
+    if not values:
+        raise ValueError("empty list")
+    return values
+
+
+def config_changes(text: Optional[str]) -> dict:
+    """A ``--config`` option: a JSON object of ``jaxvo.Config`` fields to change (``{}`` for
+    None), checked against Config's rules; ValueError naming the problem otherwise."""
+    changes = json.loads(text) if text else {}
+    if not isinstance(changes, dict):
+        raise ValueError("expected a JSON object")
+    Config.from_json({**changes, "method": "ransac"})   # validates every field
+    return changes
+
+
 def parse_methods(text: str) -> List[str]:
     """Comma list of jaxvo methods and peer names; "peers" = every available peer, "all" = both."""
     out: List[str] = []

@@ -60,16 +60,6 @@ def parse_args(argv=None):
     return ap.parse_args(argv)
 
 
-def _ints(text: str, what: str):
-    try:
-        values = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise SystemExit(f"--{what}: expected comma-separated integers, got {text!r}") from None
-    if not values:
-        raise SystemExit(f"--{what}: empty list")
-    return values
-
-
 def _policies(text: str, changes=None):
     """(gap, name, TrackConfig) per comma-separated token: a keyframe gap (1 = frame to frame,
     the paper's chaining; keyframes without segmentation) or "default" (jaxvo's default
@@ -113,15 +103,17 @@ def main(argv=None) -> Path:
     if not paths:
         raise SystemExit(common.missing_data_message())
     methods = [m for m in common.parse_methods(args.methods) if not common.is_peer(m)]
-    seeds = _ints(args.seeds, "seeds")
+    try:
+        seeds = common.int_list(args.seeds)
+    except ValueError as e:
+        raise SystemExit(f"--seeds: {e}") from None
     try:
         changes = json.loads(args.policy) if args.policy else None
     except ValueError as e:
         raise SystemExit(f"--policy: {e}") from None
     policies = _policies(args.gaps, changes)
     try:
-        base = json.loads(args.config) if args.config else {}
-        Config.from_json({**base, "method": "ransac"})
+        base = common.config_changes(args.config)
     except ValueError as e:
         raise SystemExit(f"--config: {e}")
     rows = []

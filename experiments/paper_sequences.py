@@ -24,7 +24,6 @@ Writes ``experiments/results/paper_sequences.md`` and ``.json`` and the figures 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -104,18 +103,13 @@ def parse_args(argv=None):
     except (ValueError, TypeError) as e:
         ap.error(f"--policy: {e}")
     try:
-        a.config = json.loads(a.config) if a.config else {}
-        if not isinstance(a.config, dict):
-            raise ValueError("expected a JSON object")
-        Config.from_json({**a.config, "method": "ransac"}).validate()
+        a.config = common.config_changes(a.config)
     except (ValueError, TypeError) as e:
         ap.error(f"--config: {e}")
     try:
-        a.seed_list = [int(x) for x in a.seeds.split(",") if x.strip()] if a.seeds else [a.seed]
-    except ValueError:
-        ap.error(f"--seeds: expected a comma list of integers, got {a.seeds!r}")
-    if not a.seed_list:
-        ap.error("--seeds: no seed given")
+        a.seed_list = common.int_list(a.seeds) if a.seeds else [a.seed]
+    except ValueError as e:
+        ap.error(f"--seeds: {e}")
     a.seed = a.seed_list[0]
     a.methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     bad = [m for m in a.methods if m not in METHODS + ("default",)]
