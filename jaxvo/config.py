@@ -28,7 +28,8 @@ METHODS = ("classic", "huber", "ransac")
 #: (4, 2, 1, 1); Bonn crowd with the default tracking classic 0.064 m/s, ATE 0.040 m against
 #: 0.083, 0.061, Huber 0.140, 0.110 against 0.138, 0.109). RANSAC keeps (4, 2, 1, 1): with
 #: (4, 4, 2, 1) its default tracking lowered the moving-mask precision / recall on the synthetic
-#: handheld-fast sequence from 0.86 / 0.84 to 0.67 / 0.73 (seed 0).
+#: handheld-fast sequence from 0.86 / 0.84 to 0.67 / 0.73 (seed 0, measured 2026-11-23 with the
+#: previous defaults; with the current ones it measured as accurate: README, "Where jaxvo differs").
 METHOD_BLOCKS = {"classic": (4, 4, 2, 1), "huber": (4, 4, 2, 1), "ransac": (4, 2, 1, 1)}
 
 
@@ -65,8 +66,8 @@ class Config:
       runs; each finer level only refines on the consensus set of the pose carried up from the
       coarser level (0: RANSAC on every level, the paper). Default 1: level 0's hypotheses
       (54-pixel fits at 640x480) rarely beat the pose carried up from level 1, and dropping
-      them saves about a fifth of a dynamic pair's time at no accuracy lost beyond the
-      seed-to-seed spread (numbers under prior_candidate; experiments/results/ransac_finest*.md
+      them (105.5 -> 77.7 hypotheses per Bonn pair, experiments/results/speed.md) costs no
+      accuracy beyond the seed-to-seed spread (numbers under prior_candidate; experiments/results/ransac_finest*.md
       and augmented_*.md).
     blocks: *static*, per level (index 0 = finest): the refinement uses one reference
       pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
