@@ -142,7 +142,7 @@ def part_rows(seq: Path) -> List[dict]:
 
         def prepared(i, d, i2, d2):
             ref, cur = build_pyramid(i, d, 1, c.max_depth)[0], build_pyramid(i2, d2, 1, c.max_depth)[0]
-            return ref, cur, select_points(ref, cam, c.level_blocks()[level])
+            return ref, cur, select_points(ref, cam, c.blocks[level])
 
         def prior(i, d, i2, d2, T):
             ref, cur, pts = prepared(i, d, i2, d2)

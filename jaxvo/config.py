@@ -19,18 +19,6 @@ __all__ = ["METHODS", "Config", "TrackConfig"]
 
 METHODS = ("classic", "huber", "ransac")
 
-#: ``Config.blocks`` where it is None, per method: one reference pixel per b x b tile at
-#: levels 0, 1, 2, 3 (finest first). Classic and Huber take coarser tiles than RANSAC: about
-#: two thirds of the time per pair (experiments/results/speed.md against the previous version:
-#: classic 31.5 -> 21.2 ms, Huber 40.9 -> 24.6 ms on static pairs) and as accurate where measured
-#: (``experiments/keyframes.py --gaps 1,default --methods classic,huber --config '{"blocks": ...}'``:
-#: fr2_desk frame to frame RPE 1 s 0.0173 / 0.0171 m/s with (4, 4, 2, 1), 0.0173 / 0.0172 with
-#: (4, 2, 1, 1); Bonn crowd with the default tracking classic 0.064 m/s, ATE 0.040 m against
-#: 0.083, 0.061, Huber 0.140, 0.110 against 0.138, 0.109). RANSAC keeps (4, 2, 1, 1): with
-#: (4, 4, 2, 1) its default tracking lowered the moving-mask precision / recall on the synthetic
-#: handheld-fast sequence from 0.86 / 0.84 to 0.67 / 0.73 (seed 0, measured 2026-11-23 with the
-#: previous defaults; with the current ones it measured as accurate: README, "Where jaxvo differs").
-METHOD_BLOCKS = {"classic": (4, 4, 2, 1), "huber": (4, 4, 2, 1), "ransac": (4, 2, 1, 1)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,9 +59,14 @@ class Config:
       and augmented_*.md).
     blocks: *static*, per level (index 0 = finest): the refinement uses one reference
       pixel per b x b tile, the one with the strongest intensity gradient (b = 1: every
-      pixel). The current image is always sampled at that level's full resolution. None
-      (default): the method's own, :data:`METHOD_BLOCKS` (see :meth:`level_blocks`).
-      Missing entries mean 1.
+      pixel). The current image is always sampled at that level's full resolution. Missing
+      entries mean 1. Default (4, 4, 2, 1) for every method: 4800 points at each of the
+      three finest levels of 640x480. Measured on one machine against RANSAC's previous
+      (4, 2, 1, 1), seeds 0-11 with the default tracking: Bonn crowd RPE 1 s 0.060 against
+      0.073 m/s, ATE 0.047 against 0.048 m; fr2_desk with two synthetic persons ATE 0.054
+      against 0.059 m (experiments/results/blocks_*.md); and faster per pair
+      (experiments/results/variants_blocks.md). Classic and Huber had it before: as accurate
+      as (4, 2, 1, 1) at two thirds of the time.
     max_score_pixels: *static*, RANSAC scores hypotheses on at most about this many
       reference pixels per level (a regular subgrid); the paper scores all pixels.
     depth_weight: luminance units per metre of depth residual where a joint RGB-D
@@ -144,7 +137,7 @@ class Config:
     irls_iterations: int = 2
     refine_rounds: int = 1
     ransac_finest: int = 1
-    blocks: Optional[Tuple[int, ...]] = None
+    blocks: Tuple[int, ...] = (4, 4, 2, 1)
     max_score_pixels: int = 10000
     depth_weight: Any = 600.0
     terms: str = "photometric"
@@ -191,10 +184,6 @@ class Config:
         Missing fields keep their defaults; unknown fields or invalid values raise ValueError."""
         return _from_json(cls, text, [f.name for f in dataclasses.fields(cls)])
 
-    def level_blocks(self) -> Tuple[int, ...]:
-        """``blocks``, or the method's own where it is None."""
-        return tuple(self.blocks) if self.blocks is not None else METHOD_BLOCKS[self.method]
-
     def validate(self) -> None:
         """Raise ValueError naming the first field whose value breaks its rule in ``_RULES``
         (type, finiteness, range), e.g. ``Config.p must be a number in (0, 1), got 1.5``."""
@@ -224,7 +213,7 @@ _RULES = {
     "irls_iterations": integer(1),
     "refine_rounds": integer(1),
     "ransac_finest": integer(0),
-    "blocks": positive_ints(none_means="the method's own, METHOD_BLOCKS"),
+    "blocks": positive_ints(),
     "max_score_pixels": integer(1),
     "depth_weight": real(0, lo_open=True),
     "terms": choice("photometric", "rgbd"),

@@ -91,7 +91,7 @@ def _levels(config: Config, width: int, height: int) -> int:
 
 
 def _block(config: Config, level: int) -> int:
-    blocks = config.level_blocks()
+    blocks = config.blocks
     return int(blocks[level]) if level < len(blocks) else 1
 
 

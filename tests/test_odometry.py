@@ -133,21 +133,19 @@ def test_ransac_on_coarse_levels_only(dynamic_pair):
         Config(ransac_finest=-1).validate()
 
 
-def test_blocks_none_is_the_methods_own(static_pair):
-    """Config.blocks=None takes jaxvo.config.METHOD_BLOCKS[method]: classic's default estimate
-    is bitwise the one with its tiles given explicitly, and not the one with RANSAC's."""
-    from jaxvo.config import METHOD_BLOCKS
-    assert Config().level_blocks() == METHOD_BLOCKS["ransac"] == (4, 2, 1, 1)
-    assert Config(method="huber").level_blocks() == METHOD_BLOCKS["huber"]
-    assert Config(blocks=(2, 1)).level_blocks() == (2, 1)
+def test_blocks_choose_the_refinement_points(static_pair):
+    """Config.blocks is one tile size per level for every method, (4, 4, 2, 1) by default:
+    the default estimate is bitwise the one with those tiles given explicitly, and other tiles
+    give another estimate."""
+    assert Config().blocks == Config(method="classic").blocks == (4, 4, 2, 1)
     a, b = static_pair
 
     def T(cfg):
         return np.asarray(estimate_motion(a.frame(), b.frame(), CAM, cfg, jax.random.key(0)).T_cur_ref)
 
     own = T(Config(method="classic"))
-    np.testing.assert_array_equal(own, T(Config(method="classic", blocks=METHOD_BLOCKS["classic"])))
-    assert not np.array_equal(own, T(Config(method="classic", blocks=METHOD_BLOCKS["ransac"])))
+    np.testing.assert_array_equal(own, T(Config(method="classic", blocks=(4, 4, 2, 1))))
+    assert not np.array_equal(own, T(Config(method="classic", blocks=(4, 2, 1, 1))))
 
 
 def test_user_mask_and_weights_remove_the_mover(dynamic_pair):
