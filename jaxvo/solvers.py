@@ -162,10 +162,11 @@ def _run_lm(solver, params, maxiter: int, xtol: float):
 
     def cond(carry):
         _, state, rejected = carry
-        return (state.iter_num < maxiter) & (jnp.linalg.norm(state.delta) > xtol) & (rejected < 2)
+        # the first update inside the loop too: one copy of jaxopt's update in the program, not two
+        first = state.iter_num == 0
+        return first | ((state.iter_num < maxiter) & (jnp.linalg.norm(state.delta) > xtol) & (rejected < 2))
 
-    carry = step((params, solver.init_state(params), jnp.int32(0)))
-    params, state, _ = jax.lax.while_loop(cond, step, carry)
+    params, state, _ = jax.lax.while_loop(cond, step, (params, solver.init_state(params), jnp.int32(0)))
     return params, state
 
 
@@ -262,23 +263,27 @@ def solve_pose_small(T0, ref: RefPoints, cur: Level, camera: Camera, weights, ma
         return (it < maxiter) & (step_norm > xtol) & (inc < 8)
 
     def body(state):
+        # the first trip (it = -1) only evaluates the system at delta = 0 and sets the initial
+        # damping: one evaluation of the system in the program (compile time), not two
         it, delta, M, mu, inc, _ = state
+        first = it < 0
         H, g, loss = normal(M)
-        step = -_cholesky_solve6(H + mu * jnp.eye(6, dtype=H.dtype), g)
+        step = jnp.where(first, 0.0, -_cholesky_solve6(H + mu * jnp.eye(6, dtype=H.dtype), g))
         M2 = system(delta + step)
         gain = (loss - 0.5 * M2[6, 6]) / (0.5 * step @ (mu * step - g))
-        ok = gain > 0
+        ok = first | (gain > 0)
         big = jnp.float32(2.0 ** 32)
         delta = jnp.where(ok, delta + step, delta)
         M = jnp.where(ok, M2, M)
-        mu = jnp.where(ok, mu * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3), jnp.minimum(mu * inc, big))
-        inc = jnp.where(ok, 2.0, jnp.minimum(2 * inc, big))
-        return it + 1, delta, M, mu, inc, jnp.linalg.norm(step)
+        mu_first = 1e-6 * jnp.max(jnp.diag(normal(M2)[0]))
+        mu = jnp.where(first, mu_first,
+                       jnp.where(ok, mu * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3), jnp.minimum(mu * inc, big)))
+        inc = jnp.where(first | ok, 2.0, jnp.minimum(2 * inc, big))
+        return it + 1, delta, M, mu, inc, jnp.where(first, jnp.inf, jnp.linalg.norm(step))
 
-    delta0 = jnp.zeros(6, jnp.float32)
-    M = system(delta0)
-    mu0 = 1e-6 * jnp.max(jnp.diag(normal(M)[0]))
-    state = (jnp.int32(0), delta0, M, mu0, jnp.float32(2.0), jnp.float32(jnp.inf))
+    z = jnp.zeros((), jnp.float32)
+    state = (jnp.int32(-1), jnp.zeros(6, jnp.float32), jnp.zeros((7, 7), jnp.float32), z, jnp.float32(2.0),
+             jnp.float32(jnp.inf))
     it, delta, M, _, _, _ = jax.lax.while_loop(cond, body, state)
     ok = jnp.all(jnp.isfinite(delta))
     delta = jnp.where(ok, delta, 0.0)
