@@ -1,15 +1,21 @@
-"""Config.scan_levels: the pyramid levels as one ``lax.scan`` against the default per-level code.
+"""Config variants of the estimator against each other: compile time, time per pair, pose difference.
 
-For each method, both variants of the estimator (``jaxvo.odometry._estimate_jit``) at 640x480:
-the XLA compilation of the first call (``.lower`` then ``.compile`` timed alone, wall and CPU
-seconds, lines of the lowered StableHLO), then the wall time per pair on consecutive pairs of a
-static (TUM fr2/desk) and a dynamic (Bonn crowd) sequence, the two variants timed alternately
-pass by pass in this one process (so that other processes on the machine affect both alike),
-and the largest difference of their T_cur_ref on those pairs (same key).
+Each variant is a set of ``Config`` fields changed from the default (``--variants`` JSON: name ->
+fields; the first is the baseline). For each method in ``--methods`` (a variant that sets
+``method`` itself runs once) and each variant, the estimator (``jaxvo.odometry._estimate_jit``)
+at 640x480: the XLA compilation of the first call (``.lower`` then ``.compile`` timed alone,
+wall and CPU seconds, lines of the lowered StableHLO), then the wall time per pair on pairs
+spread over a static (TUM fr2/desk) and a dynamic (Bonn crowd) sequence, the variants timed in
+turn pass by pass in this one process (the order reversed every other pass, so that other
+processes on the machine weigh on all alike), the mean number of RANSAC hypotheses, and the
+largest difference of each variant's T_cur_ref from the baseline's on those pairs (same key).
+
+The default variants are ``Config.scan_levels`` off and on (one scanned level body).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from typing import List, Optional
 
@@ -22,14 +28,38 @@ import jax.numpy as jnp  # noqa: E402
 from jaxvo.config import METHODS, Config  # noqa: E402
 from jaxvo.odometry import _estimate_jit, estimate_motion  # noqa: E402
 
+DEFAULT_VARIANTS = '{"per level": {}, "scan": {"scan_levels": true}}'
+SETS = (("static", "rgbd_dataset_freiburg2_desk"), ("dynamic", "rgbd_bonn_crowd"))
+
 
 def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variants", default=DEFAULT_VARIANTS,
+                    help="JSON object: variant name -> Config fields changed from the default; the first is the "
+                         "baseline (default: %(default)s)")
     ap.add_argument("--methods", default="classic,huber,ransac", help="comma list (default classic,huber,ransac)")
     ap.add_argument("--pairs", type=int, default=5, help="consecutive pairs per sequence (default 5)")
     ap.add_argument("--repeats", type=int, default=3, help="timed passes per variant (default 3)")
-    ap.add_argument("--out", default="experiments/results/scan_levels.md", help="markdown output (json beside it)")
+    ap.add_argument("--quick", action="store_true", help="2 pairs per sequence, 1 pass (smoke test)")
+    ap.add_argument("--out", default=str(common.RESULTS / "variants.md"), help="markdown output (json beside it)")
     return ap.parse_args(argv)
+
+
+def parse_variants(text: str) -> dict:
+    """name -> dict of Config fields, each checked as a ``--config`` (a misspelt field or a bad
+    value stops with the variant's name and the problem)."""
+    try:
+        variants = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"--variants: not JSON: {e}")
+    if not isinstance(variants, dict) or not variants:
+        raise SystemExit("--variants: expected a JSON object of name -> object of Config fields")
+    for name, fields in variants.items():
+        try:
+            common.config_changes(json.dumps(fields))
+        except ValueError as e:
+            raise SystemExit(f"--variants: {name}: {e}")
+    return variants
 
 
 def compile_stats(config: Config, camera) -> dict:
@@ -42,58 +72,80 @@ def compile_stats(config: Config, camera) -> dict:
             "lines": lowered.as_text().count("\n")}
 
 
+def configs(variants: dict, methods: List[str]) -> dict:
+    """(method, variant) -> Config; a variant that names its own method runs once, under it."""
+    out = {}
+    for method in methods:
+        for name, fields in variants.items():
+            m = fields.get("method", method)
+            if m == method:
+                out[(m, name)] = Config.from_dict({**fields, "method": m})
+    return out
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     args = parse_args(argv)
-    header = common.provenance_md("Config.scan_levels: one scanned level body against per-level code",
-                                  __file__, argv)
-    pairs = []
-    for name in ("rgbd_dataset_freiburg2_desk", "rgbd_bonn_crowd"):
-        seq = common.open_sequence(common.find_named(name))
-        idx = np.linspace(0, len(seq) - 2, args.pairs).astype(int)
-        pairs += [(seq.frame(i), seq.frame(i + 1), seq.camera) for i in idx]
-    rows = []
+    if args.quick:
+        args.pairs, args.repeats = 2, 1
+    variants = parse_variants(args.variants)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     bad = [m for m in methods if m not in METHODS]
     if bad:
-        raise SystemExit(f"error: unknown method {bad[0]!r}: choose from {', '.join(METHODS)}")
+        raise SystemExit(f"unknown method {bad[0]!r}: choose from {', '.join(METHODS)}")
+    header = common.provenance_md("Config variants: compile time, time per pair, pose difference", __file__, argv)
+    pairs = {}
+    for label, name in SETS:
+        seq = common.open_sequence(common.find_named(name))
+        idx = np.linspace(0, len(seq) - 2, args.pairs).astype(int)
+        pairs[label] = [(seq.frame(i), seq.frame(i + 1), seq.camera) for i in idx]
+    cfgs = configs(variants, methods)
+    base = list(variants)[0]
+    rows = []
     for method in methods:
-        variants = {"per level": Config(method=method), "scan": Config(method=method, scan_levels=True)}
-        row = {"method": method}
-        for v, cfg in variants.items():
-            st = compile_stats(cfg, pairs[0][2])
-            common.log(f"{method} {v}: XLA compile {st['compile_s']:.1f} s (cpu {st['compile_cpu_s']:.1f} s), "
-                       f"{st['lines']} lines")
-            row.update({f"{v} {k}": x for k, x in st.items()})
-            jax.block_until_ready(estimate_motion(*pairs[0], cfg, jax.random.key(0)))  # the first call
-        times = {v: [] for v in variants}
-        poses = {v: [] for v in variants}
+        names = [v for (m, v) in cfgs if m == method]
+        stats = {}
+        for v in names:
+            stats[v] = compile_stats(cfgs[(method, v)], pairs["static"][0][2])
+            common.log(f"{method} {v}: XLA compile {stats[v]['compile_s']:.1f} s "
+                       f"(cpu {stats[v]['compile_cpu_s']:.1f} s), {stats[v]['lines']} lines")
+            jax.block_until_ready(estimate_motion(*pairs["static"][0], cfgs[(method, v)], jax.random.key(0)))
+        times = {(v, s): [] for v in names for s in pairs}
+        poses = {(v, s): [] for v in names for s in pairs}
+        hyps = {(v, s): [] for v in names for s in pairs}
         for r in range(args.repeats):
-            for v in (list(variants) if r % 2 == 0 else list(variants)[::-1]):
-                for a, b, cam in pairs:
-                    t0 = time.perf_counter()
-                    est = jax.block_until_ready(estimate_motion(a, b, cam, variants[v], jax.random.key(0)))
-                    times[v].append(time.perf_counter() - t0)
-                    if r == 0:
-                        poses[v].append(np.asarray(est.T_cur_ref))
-        for v in variants:
-            row[f"{v} ms"] = 1e3 * float(np.median(times[v]))
-        row["ratio"] = row["scan ms"] / row["per level ms"]
-        row["max_dT"] = float(max(np.abs(x - y).max() for x, y in zip(poses["per level"], poses["scan"])))
-        common.log(f"{method}: per pair {row['per level ms']:.1f} ms per level, {row['scan ms']:.1f} ms scan")
-        rows.append(row)
+            for v in (names if r % 2 == 0 else names[::-1]):
+                for s, ps in pairs.items():
+                    for a, b, cam in ps:
+                        t0 = time.perf_counter()
+                        est = jax.block_until_ready(estimate_motion(a, b, cam, cfgs[(method, v)], jax.random.key(0)))
+                        times[(v, s)].append(time.perf_counter() - t0)
+                        if r == 0:
+                            poses[(v, s)].append(np.asarray(est.T_cur_ref))
+                            hyps[(v, s)].append(int(np.sum(est.hypotheses)))
+        for v in names:
+            for s in pairs:
+                ms = 1e3 * float(np.median(times[(v, s)]))
+                row = {"method": method, "variant": v, "pairs": s, "ms": ms, "hyps": float(np.mean(hyps[(v, s)])),
+                       **stats[v]}
+                if base in names:
+                    row["ratio"] = ms / (1e3 * float(np.median(times[(base, s)])))
+                    row["max_dT"] = float(max(np.abs(x - y).max() for x, y in zip(poses[(base, s)], poses[(v, s)])))
+                rows.append(row)
+            common.log(f"{method} {v}: " + ", ".join(f"{s} {1e3 * np.median(times[(v, s)]):.1f} ms" for s in pairs))
     lines = header + [
+        "Variants (Config fields changed from the default; the first is the baseline of `ratio` and "
+        f"`max abs dT`): `{json.dumps(variants)}`.", "",
         "XLA compile: `_estimate_jit(...).lower(...).compile()` of the estimator at 640x480 alone (wall and "
         "CPU s; lines: the lowered StableHLO). Per pair: median wall time of `estimate_motion` (blocked) over "
-        f"{args.pairs} static (fr2/desk) + {args.pairs} dynamic (Bonn crowd) consecutive pairs x {args.repeats} "
-        "passes, the two variants alternating pass by pass. max |dT|: largest entry of the difference of the "
-        "two T_cur_ref over the pairs (same key).", ""]
+        f"{args.pairs} static (fr2/desk) or {args.pairs} dynamic (Bonn crowd) consecutive pairs spread over the "
+        f"sequence x {args.repeats} passes, the variants in turn pass by pass. hyps: mean RANSAC hypotheses per "
+        "pair. max |dT|: largest entry of the difference of T_cur_ref from the baseline's on the same pairs "
+        "(same key).", ""]
     lines += common.md_table(rows, [
-        ("method", "method", "s"),
-        ("compile s per level", "per level compile_s", ".1f"), ("compile s scan", "scan compile_s", ".1f"),
-        ("cpu s per level", "per level compile_cpu_s", ".1f"), ("cpu s scan", "scan compile_cpu_s", ".1f"),
-        ("lines per level", "per level lines", "d"), ("lines scan", "scan lines", "d"),
-        ("ms/pair per level", "per level ms", ".1f"), ("ms/pair scan", "scan ms", ".1f"),
-        ("scan / per level", "ratio", ".2f"), ("max abs dT", "max_dT", ".1e")])
+        ("method", "method", "s"), ("variant", "variant", "s"), ("pairs", "pairs", "s"),
+        ("compile s", "compile_s", ".1f"), ("compile cpu s", "compile_cpu_s", ".1f"), ("lines", "lines", "d"),
+        ("ms/pair", "ms", ".1f"), ("/ baseline", "ratio", ".2f"), ("hyps", "hyps", ".1f"),
+        ("max abs dT", "max_dT", ".1e")])
     common.write_outputs(args.out, lines, {"rows": rows, "argv": argv})
     print("\n".join(lines))
 

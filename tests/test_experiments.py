@@ -40,7 +40,7 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("aug-cache")
 
 
-@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup"])
+@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants"])
 def test_help(name):
     r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
                        timeout=120)
@@ -153,6 +153,23 @@ def test_paper_sequences_config_and_seeds_are_checked(capsys):
         with pytest.raises(SystemExit) as e:
             _script("paper_sequences").main(["--quick"] + args)
         assert e.value.code == 2 and msg in capsys.readouterr().err, args
+
+
+def test_variants_quick(tmp_path):
+    """variants.py: one row per (variant, pair set), the baseline's ratio 1 and pose difference 0,
+    a variant that changes the estimate differs from it; a misspelt field stops with its name."""
+    _require(STATIC, DYNAMIC)
+    out = tmp_path / "variants.md"
+    _script("variants").main(["--quick", "--methods", "classic", "--out", str(out),
+                              "--variants", '{"base": {"finest_level": 2}, "coarser": {"finest_level": 3}}'])
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert [(r["variant"], r["pairs"]) for r in rows] == [
+        ("base", "static"), ("base", "dynamic"), ("coarser", "static"), ("coarser", "dynamic")]
+    assert all(r["ratio"] == 1.0 and r["max_dT"] == 0.0 for r in rows[:2])
+    assert all(r["max_dT"] > 0 and r["compile_s"] > 0 and r["ms"] > 0 for r in rows[2:])
+    assert "| classic | coarser | dynamic |" in out.read_text()
+    with pytest.raises(SystemExit, match="coarse: .*did you mean 'finest_level'"):
+        _script("variants").main(["--quick", "--variants", '{"coarse": {"finest_levl": 3}}'])
 
 
 def test_paper_sequences_seeds_and_config(tmp_path):
