@@ -110,11 +110,16 @@ class Config:
       cover most of the view (seeds 0-11, experiments/results/brightness_*.md: RPE 1 s 0.062
       against 0.065 m/s and ATE 0.043 against 0.047 m, within the seed-to-seed spread of
       0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179).
-    scan_levels: *static*, run the pyramid levels as ``lax.scan`` over one level body (padded
-      to the finest level's size) instead of one copy of the code per level: about half the
-      XLA compile time of the first call (ransac 29 -> 15 CPU-s), the same poses to float32
-      rounding, but 1.2-1.9x slower per pair on CPU (experiments/results/scan_levels.md,
-      ``python experiments/scan_levels.py``); off by default.
+    scan_levels: *static*, run the pyramid levels as ``lax.scan`` over one level body per
+      group of levels that share whether RANSAC runs (levels 3-1 and level 0 by default;
+      the images padded to the group's largest level, the point lists to its longest)
+      instead of one copy of the code per level. Default True: with the default tiles
+      (4800 refinement points at each of levels 3-1) the padding costs little, and the
+      first call compiles in a little over half the time (ransac 14.5 -> 8.3 s, classic
+      4.0 -> 2.9 s) at the same time per pair within the run-to-run spread (0.87-1.07x
+      where measured) and the same poses to float32 rounding (``python
+      experiments/variants.py``, experiments/results/scan_levels.md). False: one copy per
+      level, which compiles longer.
     """
     method: str = "ransac"
     p: Any = 0.99
@@ -150,7 +155,7 @@ class Config:
     min_photometric_agreement: Any = 0.65
     sample_gate: Any = 0.0
     brightness: str = "none"
-    scan_levels: bool = False
+    scan_levels: bool = True
 
     @classmethod
     def paper(cls, method: str = "ransac", **changes) -> "Config":

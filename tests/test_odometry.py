@@ -376,13 +376,14 @@ def test_brightness_offset_recovers_an_exposure_change(static_pair):
 
 
 def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
-    """Config.scan_levels (the levels as one lax.scan over padded, stacked levels) against the
-    default per-level code, compiled separately for each level's own shapes: the same RANSAC
+    """Config.scan_levels (the default: the levels as one lax.scan over padded, stacked levels)
+    against the per-level code, compiled separately for each level's own shapes: the same RANSAC
     draws and iterations at every level and the same pose to float32 rounding. ransac_finest=1
-    splits the levels into two scans (RANSAC on levels 3-1, whose point lists differ in length
-    and are padded, refinement only on level 0)."""
+    splits the levels into two scans (RANSAC on levels 3-1, refinement only on level 0); the
+    (4, 2, 1, 1) tiles give the RANSAC levels point lists of different lengths, which are padded."""
     a, b = dynamic_pair
-    cfg = Config(ransac_finest=1)
+    cfg = Config(ransac_finest=1, blocks=(4, 2, 1, 1), scan_levels=False)
+    assert Config().scan_levels
     per_level = estimate_motion(a.frame(), b.frame(), CAM, cfg, jax.random.key(0))
     scanned = estimate_motion(a.frame(), b.frame(), CAM, cfg.replace(scan_levels=True), jax.random.key(0))
     np.testing.assert_array_equal(np.asarray(scanned.hypotheses), np.asarray(per_level.hypotheses))
