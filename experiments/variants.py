@@ -10,7 +10,8 @@ turn pass by pass in this one process (the order reversed every other pass, so t
 processes on the machine weigh on all alike), the mean number of RANSAC hypotheses, and the
 largest difference of each variant's T_cur_ref from the baseline's on those pairs (same key).
 
-The default variants are ``Config.scan_levels`` off and on (one scanned level body).
+The default variants are ``Config.scan_levels`` on (the default: one scanned level body per group of
+levels) and off (one copy of the code per level).
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ import jax.numpy as jnp  # noqa: E402
 from jaxvo.config import METHODS, Config  # noqa: E402
 from jaxvo.odometry import _estimate_jit, estimate_motion  # noqa: E402
 
-DEFAULT_VARIANTS = '{"per level": {}, "scan": {"scan_levels": true}}'
+DEFAULT_VARIANTS = '{"scan": {}, "per level": {"scan_levels": false}}'
 SETS = (("static", "rgbd_dataset_freiburg2_desk"), ("dynamic", "rgbd_bonn_crowd"))
 
 
