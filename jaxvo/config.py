@@ -110,16 +110,15 @@ class Config:
       cover most of the view (seeds 0-11, experiments/results/brightness_*.md: RPE 1 s 0.062
       against 0.065 m/s and ATE 0.043 against 0.047 m, within the seed-to-seed spread of
       0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179).
-    scan_levels: *static*, run the pyramid levels as ``lax.scan`` over one level body per
-      group of levels that share whether RANSAC runs (levels 3-1 and level 0 by default;
-      the images padded to the group's largest level, the point lists to its longest)
-      instead of one copy of the code per level. Default True: with the default tiles
-      (4800 refinement points at each of levels 3-1) the padding costs little, and the
-      first call compiles in a little over half the time (ransac 14.5 -> 8.3 s, classic
-      4.0 -> 2.9 s) at the same time per pair within the run-to-run spread (0.87-1.07x
-      where measured) and the same poses to float32 rounding (``python
-      experiments/variants.py``, experiments/results/scan_levels.md). False: one copy per
-      level, which compiles longer.
+    scan_levels: *static*, RANSAC only: run the RANSAC levels that refine on the same number of
+      points (levels 3-1 with the default tiles, 4800 points each) as one ``lax.scan`` over one
+      level body (images padded to the group's largest level, scoring grids to the longest)
+      instead of one copy of the code per level; the other levels run per level. Default
+      True: the first call compiles in about half the time (ransac 16.2 -> 8.6 s) at about
+      the same time per pair (0.83-1.00x of it per level, within the run-to-run spread), with
+      the same poses to float32 rounding (``python experiments/variants.py``,
+      experiments/results/scan_levels.md). Classic and Huber are not scanned: their levels
+      compile in ~1 s each and ran 1.2-1.4x slower scanned.
     """
     method: str = "ransac"
     p: Any = 0.99
