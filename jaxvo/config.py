@@ -114,11 +114,13 @@ class Config:
       points (levels 3-1 with the default tiles, 4800 points each) as one ``lax.scan`` over one
       level body (images padded to the group's largest level, scoring grids to the longest)
       instead of one copy of the code per level; the other levels run per level. Default
-      True: the first call compiles in about half the time (ransac 16.2 -> 8.6 s) at about
-      the same time per pair (0.83-1.00x of it per level, within the run-to-run spread), with
-      the same poses to float32 rounding (``python experiments/variants.py``,
-      experiments/results/scan_levels.md). Classic and Huber are not scanned: their levels
-      compile in ~1 s each and ran 1.2-1.4x slower scanned.
+      True: XLA compiles the estimator in 9.3 instead of 14.2 s, with the same poses to
+      float32 rounding, at 1.00x (static) / 1.13x (Bonn) the time per pair of the per-level
+      code in the same run (``python experiments/variants.py --methods ransac --pairs 10
+      --repeats 5``, experiments/results/scan_levels.md; an earlier run gave 1.21x / 1.00x:
+      within the run-to-run spread of this machine). False is worth it for long runs in one
+      process (the compiled program is cached across processes anyway). Classic and Huber
+      are not scanned: their levels compile in ~1 s each and ran 1.2-1.4x slower scanned.
     """
     method: str = "ransac"
     p: Any = 0.99
