@@ -120,7 +120,9 @@ class Config:
       --repeats 5``, experiments/results/scan_levels.md; an earlier run gave 1.21x / 1.00x:
       within the run-to-run spread of this machine). False is worth it for long runs in one
       process (the compiled program is cached across processes anyway). Classic and Huber
-      are not scanned: their levels compile in ~1 s each and ran 1.2-1.4x slower scanned.
+      are not scanned: their levels compile in about a second each, and scanned (all four
+      levels as one group) classic took 1.37x / 1.23x the time per pair, Huber 1.01x / 0.85x,
+      for 0.9-1.1 s less compilation (experiments/results/scan_levels.md at commit d68e5a6).
     """
     method: str = "ransac"
     p: Any = 0.99
