@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Callable, Dict, Optional, Tuple
 
 import jax
+import numpy as np
 
 __all__ = ["enable", "folder", "call", "program_key", "stats"]
 
@@ -104,7 +105,9 @@ def _avals(leaves) -> tuple:
 
 def _signature(leaves) -> tuple:
     """What fixes the abstract values of ``leaves``, cheaply (every call looks it up)."""
-    return tuple((type(x), getattr(x, "shape", None), getattr(x, "dtype", None), getattr(x, "weak_type", None))
+    # a NumPy array and a JAX array of the same shape and dtype are the same input to the program
+    return tuple(("array", x.shape, x.dtype, getattr(x, "weak_type", False)) if isinstance(x, (np.ndarray, jax.Array))
+                 else (type(x), getattr(x, "shape", None), getattr(x, "dtype", None), getattr(x, "weak_type", None))
                  for x in leaves)
 
 
