@@ -118,6 +118,13 @@ def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatc
         assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0} and len(traces) == 1
         (path,) = (tmp_path / "exported").iterdir()
         assert run() == {"loaded": 1, "exported": 0, "fallbacks": 0} and len(traces) == 1
+        # the same values as NumPy (estimate_motion passes NumPy frames as they are): the same
+        # program, neither a second export nor a second entry
+        before = aot.stats()
+        out = aot.call("scaled", fn, _scaled_jit, (np.asarray(x), cfg))
+        for a, b in zip(out, want):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert aot.stats() == before and len(aot._PROGRAMS) == 1 and len(traces) == 1
         blob = path.read_bytes()
         for bad in (blob[: len(blob) // 2], blob[:-1] + bytes([blob[-1] ^ 1]), b"", b"not an exported program"):
             path.write_bytes(bad)

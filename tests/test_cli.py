@@ -314,12 +314,14 @@ def test_bonn_crowd_160_frames_end_to_end(tmp_path):
     default = _run_and_eval(tmp_path, BONN_CROWD, "ransac")
     f2f = _run_and_eval(tmp_path, BONN_CROWD, "ransac", "--frame-to-frame")
     print("default", default, "frame to frame", f2f)
-    # measured (experiments/keyframes.py, seeds 0-2): defaults 0.057-0.092 m/s, 1.8-2.0 deg/s,
-    # ATE 0.047-0.053 m; ransac frame to frame 0.68-0.70 m/s, 11.2-11.5 deg/s, ATE 0.68-0.70 m
+    # measured (experiments/keyframes.py, seeds 0-11, experiments/results/bonn_default.md):
+    # defaults 0.037-0.061 m/s, 1.0-1.4 deg/s, ATE 0.034-0.049 m; ransac frame to frame
+    # 0.71-0.72 m/s, 11.7-12.3 deg/s, ATE 0.70-0.72 m (seeds 0-2). Another CPU rounds differently
+    # and a crowd run amplifies rounding, so the bounds leave the seeds' spread as margin.
     assert default[0] < 0.25 * f2f[0] and default[2] < 0.15 * f2f[2], (default, f2f)
     assert default[1] < 0.3 * f2f[1] and default[1] < 3.5, (default, f2f)
-    # better than standing still where it can be: in rotation and ATE
-    assert default[1] < 0.5 * 7.2 and default[2] < 0.08, default
+    # better than standing still (0.087 m/s, 7.2 deg/s, ATE 0.089 m) in all three
+    assert default[0] < 0.8 * 0.087 and default[1] < 0.5 * 7.2 and default[2] < 0.065, default
 
 
 def test_cli_matches_library_track(tmp_path, synth_seq):

@@ -180,6 +180,38 @@ def test_same_key_is_bitwise_identical(dynamic_pair):
         assert np.array_equal(np.asarray(x), np.asarray(y))
 
 
+def test_numpy_and_jax_inputs_give_the_same_estimate_and_one_program(dynamic_pair):
+    """NumPy frames travel to the compiled call as they are (no per-array dispatch); JAX arrays,
+    float64 inputs and explicit weights / init give bitwise the same estimate, without a retrace."""
+    a, b = dynamic_pair
+    fa, fb = a.frame(), b.frame()
+    cfg, key = Config(method="ransac"), jax.random.key(3)
+    ref = estimate_motion(fa, fb, CAM, cfg, key)
+    before = trace_count()
+    as_jax = Frame(jnp.asarray(fa.intensity), jnp.asarray(fa.depth)), Frame(jnp.asarray(fb.intensity), jnp.asarray(fb.depth))
+    as_f64 = Frame(np.float64(fa.intensity), np.float64(fa.depth)), Frame(np.float64(fb.intensity), np.float64(fb.depth))
+    ones = np.ones(fa.depth.shape)
+    for r, c, kw in ((*as_jax, {}), (*as_f64, {}), (fa, fb, {"weights": ones, "init": np.eye(4)}),
+                     (fa, fb, {"weights": jnp.asarray(ones, jnp.float32), "init": jnp.eye(4)})):
+        e = estimate_motion(r, c, CAM, cfg, key, **kw)
+        for x, y in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(e)):
+            assert np.array_equal(np.asarray(x), np.asarray(y))
+    assert trace_count() == before
+
+
+def test_a_bad_config_is_refused_every_time(static_pair):
+    """Checked (config, camera) pairs are remembered; a bad one never is, whatever came before."""
+    a, b = static_pair
+    estimate_motion(a.frame(), b.frame(), CAM, Config(method="classic"))
+    for _ in range(2):
+        with pytest.raises(ValueError, match="thresh_lum"):
+            estimate_motion(a.frame(), b.frame(), CAM, Config(method="classic", thresh_lum=-1.0))
+    bad_cam = dataclasses.replace(CAM, fx=-1.0)
+    for _ in range(2):
+        with pytest.raises(ValueError, match="fx"):
+            estimate_motion(a.frame(), b.frame(), bad_cam, Config(method="classic"))
+
+
 def test_compiled_once_per_shape_and_method(static_pair, dynamic_pair):
     cfg = Config(method="classic")
     frames = [static_pair[0].frame(), static_pair[1].frame(), dynamic_pair[0].frame(), dynamic_pair[1].frame()]
