@@ -116,13 +116,19 @@ def main(argv=None) -> Path:
     rows = []
     for p in seqs:
         rows += run_sequence(p, methods, args, "real")
-    augmented = []
+    augmented, not_augmented = [], []
     if not args.no_augment:
         for p in seqs:
             if common.datasets.is_bonn_sequence(p) or "_aug_" in p.name or not (p / "groundtruth.txt").is_file():
                 continue  # Bonn is dynamic already; augment needs TUM ground truth
             common.log(f"[table1] augmenting {p.name} ({args.persons} persons, coverage {args.coverage})")
-            aug = common.augmented_sequence(p, args.persons, args.coverage, args.seed, args.max_frames, args.cache)
+            try:
+                aug = common.augmented_sequence(p, args.persons, args.coverage, args.seed, args.max_frames,
+                                                args.cache)
+            except common.datasets.DatasetError as e:   # e.g. ground truth that starts after the first frame
+                common.log(f"[table1] {p.name}: skipped, cannot augment: {e}")
+                not_augmented.append(f"{p.name} (cannot augment: {e})")
+                continue
             augmented.append(aug)
             rows += run_sequence(aug, methods, args, "augmented")
 
@@ -140,6 +146,10 @@ def main(argv=None) -> Path:
         f"Methods: {', '.join(methods)}." + (f" Not available here (skipped): {', '.join(skipped)}." if skipped else ""),
         f"Augmentations: `jaxvo.synthetic.augment` with {args.persons} persons, coverage {args.coverage}, "
         f"seed {args.seed}, cached in `{args.cache or common.CACHE}`." if augmented else "Augmentations: none.",
+    ]
+    if not_augmented:
+        lines += [f"Not augmented: {'; '.join(not_augmented)}."]
+    lines += [
         "",
     ]
     for kind, title in (("real", "Real sequences"), ("augmented", "Dynamic augmentations of the real sequences")):
@@ -150,7 +160,8 @@ def main(argv=None) -> Path:
     lines += _verdict(rows, methods)
     out = common.write_outputs(args.out, lines, {"command": common.command_line(__file__, argv),
                                                  "machine": common.machine_info(), "rows": rows,
-                                                 "methods": methods, "skipped": skipped})
+                                                 "methods": methods, "skipped": skipped,
+                                                 "not_augmented": not_augmented})
     common.log(f"[table1] wrote {out} and {out.with_suffix('.json')}")
     return out
 

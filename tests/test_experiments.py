@@ -67,6 +67,20 @@ def test_table1_quick(tmp_path, cache):
         assert r["rpe1s_t"] is None  # 3 frames span < 1 s
 
 
+def test_table1_goes_on_past_a_sequence_it_cannot_augment(tmp_path, cache):
+    """fr3_long_office's ground truth starts after its first frame, so it cannot be augmented: the
+    script says so in its output and still writes the real rows (it stopped there before)."""
+    fr3 = data_root() / "tum" / "rgbd_dataset_freiburg3_long_office_household"
+    _require(fr3)
+    out = tmp_path / "table1.md"
+    _script("table1").main([str(fr3), "--quick", "--methods", "classic", "--cache", str(cache), "--out", str(out)])
+    text = out.read_text()
+    assert "Not augmented: rgbd_dataset_freiburg3_long_office_household (cannot augment:" in text
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["kind"], r["method"]) for r in data["rows"]] == [("real", "classic")]
+    assert data["not_augmented"] and "ground truth" in data["not_augmented"][0]
+
+
 def test_speed_quick(tmp_path):
     _require(STATIC, DYNAMIC)
     out = tmp_path / "speed.md"
