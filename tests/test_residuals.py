@@ -268,3 +268,29 @@ def test_select_points_picks_strongest_gradient_with_valid_depth():
         assert tc * b <= float(pts.u[k]) < (tc + 1) * b and tr * b <= float(pts.v[k]) < (tr + 1) * b
     # block 1 is every pixel
     assert select_points(lev, cam, 1).u.shape == (h * w,)
+
+
+@pytest.mark.parametrize("b", [2, 4])
+def test_select_points_matches_a_per_tile_loop(b):
+    """Against an independent NumPy loop over the tiles: the pixel of largest score
+    (gradient^2 + 1e-3) * (weight + 1e-6) among valid depth, the first in the tile's row-major
+    order on ties (a flat image ties everywhere), on a size that is not a multiple of the tile."""
+    rng = np.random.default_rng(b)
+    h, w = 13, 18
+    img = np.round(rng.uniform(0, 4, (h, w))).astype(np.float32)   # small integers: many ties
+    img[:, :6] = 7.0                                                  # flat columns: all ties
+    depth = np.where(rng.uniform(size=(h, w)) < 0.8, 1.5, 0.0).astype(np.float32)
+    weight = np.where(rng.uniform(size=(h, w)) < 0.7, 1.0, 0.2).astype(np.float32)
+    lev = build_pyramid(img, depth, 1, weight=weight)[0]
+    cam = DEFAULT.at_level(2).with_size(w, h)
+    pts = select_points(lev, cam, b)
+    g2 = np.asarray(lev.igrad[..., 1] ** 2 + lev.igrad[..., 2] ** 2)
+    score = np.where(depth > 0, (g2 + np.float32(1e-3)) * (weight + np.float32(1e-6)), 0.0)
+    want = []
+    for tr in range(h // b):
+        for tc in range(w // b):
+            tile = score[tr * b:(tr + 1) * b, tc * b:(tc + 1) * b]
+            r, c = np.unravel_index(np.argmax(tile), tile.shape)   # first maximum, row-major
+            want.append((tc * b + c, tr * b + r))
+    got = list(zip(np.asarray(pts.u).astype(int).tolist(), np.asarray(pts.v).astype(int).tolist()))
+    assert got == want
