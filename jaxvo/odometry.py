@@ -410,8 +410,7 @@ def explain_validity(ref: Frame, cur: Frame, camera: Camera, estimate: "MotionEs
     config = _checked_settings(config, camera)
     validate_pair(ref, cur, camera)
     offset = 0.0 if estimate.brightness is None else estimate.brightness
-    return _explain(jnp.asarray(ref.intensity, jnp.float32), jnp.asarray(ref.depth, jnp.float32),
-                    jnp.asarray(cur.intensity, jnp.float32), jnp.asarray(cur.depth, jnp.float32),
+    return _explain(_float32(ref.intensity), _float32(ref.depth), _float32(cur.intensity), _float32(cur.depth),
                     camera, config, estimate.T_cur_ref, estimate.information, jnp.float32(offset))
 
 
@@ -703,7 +702,7 @@ class Odometry:
         j = len(self.poses)
         self._frames[j] = frame
         if self.policy.segment:
-            self._depths[j] = _map_depth(jnp.asarray(frame.depth, jnp.float32), self.config.max_depth)
+            self._depths[j] = _map_depth(_float32(frame.depth), self.config.max_depth)
         if j == 0:
             self.poses.append(self._first)
             if self.policy.segment:
@@ -736,7 +735,7 @@ class Odometry:
         if policy.segment:
             static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
             if valid:  # the current frame's view of the reference, at the estimated pose
-                self._L = _update_map(self._L, self._depths[ref], self._depths[j], jnp.asarray(T, jnp.float32),
+                self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T),
                                       self._map_cam, self.params)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
         self._maybe_switch(j, T, ratio_static)
