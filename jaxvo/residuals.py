@@ -98,8 +98,8 @@ def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
     score = jnp.where(level.depth > 0, (g2 + 1e-3) * (level.weight + 1e-6), 0.0)[: hb * block, : wb * block]
     # the tile's pixels as block * block strided views, in the tile's row-major order (so ties go
     # to the same pixel), reduced over the leading axis: XLA on CPU is slow at the reduction over
-    # interleaved axes a (hb, block, wb, block) reshape needs (0.80 against 0.49 ms at 640x480,
-    # 3-6 % of a whole estimate)
+    # interleaved axes a (hb, block, wb, block) reshape needs (a scratch timing on 2026-11-25:
+    # 0.80 against 0.49 ms at 640x480, 3-6 % of a whole estimate)
     views = jnp.stack([score[i::block, j::block] for i in range(block) for j in range(block)])
     k = jnp.argmax(views, axis=0)
     vi = jnp.arange(hb)[:, None] * block + k // block
