@@ -18,8 +18,11 @@ wall time of the whole process, interpreter start and imports included, for one 
 Then, unless ``--no-stages``, where the first compilation goes: the estimator alone
 (``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
 XLA-compiled in this process with no cache, each stage timed, and the size of the lowered
-program (lines of StableHLO text); and the default estimator's parts (prior fit, RANSAC
-hypotheses and scoring, refinement) at the finest and the coarsest level, each compiled alone.
+program (lines of StableHLO text) and of the compiled one (fusions: the kernels XLA generates code
+for); the same program compiled with XLA's legacy CPU fusion emitters, and both programs' time per
+pair (the trade between compile time and run time that XLA's option offers); and the default
+estimator's parts (prior fit, RANSAC hypotheses and scoring, refinement) at the finest and the
+coarsest level, each compiled alone.
 """
 from __future__ import annotations
 
@@ -86,15 +89,25 @@ def startup_rows(seq: Path, methods: List[str]) -> List[dict]:
     return rows
 
 
-def stage_rows(seq: Path, methods: List[str]) -> List[dict]:
-    """Trace / lower / XLA compile of the estimator alone, no cache (this process compiled nothing yet)."""
+# XLA's CPU code generators: the fusion emitters (XLA's default) and, for comparison, the
+# legacy ones (``xla_cpu_use_fusion_emitters`` off), which compile each fusion faster
+EMITTERS = (("", {}), (", legacy fusion emitters", {"xla_cpu_use_fusion_emitters": False}))
+
+
+def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) -> List[dict]:
+    """Trace / lower / XLA compile of the estimator alone, no cache (this process compiled nothing yet),
+    with XLA's fusion emitters and with its legacy ones, and each compiled program's median time
+    per pair on the sequence's first ``pairs`` consecutive pairs (``repeats`` passes, alternating)."""
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     from jaxvo.config import Config
-    from jaxvo.odometry import _estimate_jit
+    from jaxvo.odometry import _estimate_args, _estimate_jit
+    from jaxvo.solvers import COMPILER_OPTIONS
 
-    s = common.open_sequence(seq)
+    s = common.open_sequence(seq, max_frames=pairs + 1)
+    frames = common.load_frames(s)
     h, w = s.camera.height, s.camera.width
     img = jax.ShapeDtypeStruct((h, w), jnp.float32)
     rows = []
@@ -108,13 +121,33 @@ def stage_rows(seq: Path, methods: List[str]) -> List[dict]:
         lowered = traced.lower()
         t2 = time.perf_counter()
         lines = lowered.as_text().count("\n")
-        t3, c3 = time.perf_counter(), time.process_time()
-        lowered.compile()
-        t4, c4 = time.perf_counter(), time.process_time()
-        rows.append({"method": method, "part": "whole estimator", "trace_s": t1 - t0, "lower_s": t2 - t1,
-                     "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines})
-        print(f"{method:8s} trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s "
-              f"(cpu {c4 - c3:.2f} s)  {lines} lines", flush=True)
+        programs = []
+        for label, options in EMITTERS:
+            t3, c3 = time.perf_counter(), time.process_time()
+            compiled = lowered.compile({**COMPILER_OPTIONS, **options})
+            t4, c4 = time.perf_counter(), time.process_time()
+            programs.append(compiled)
+            fusions = len(re.findall(r"\bkind=k\w+", compiled.as_text()))
+            rows.append({"method": method, "part": "whole estimator" + label, "trace_s": t1 - t0, "lower_s": t2 - t1,
+                         "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines, "fusions": fusions})
+            print(f"{method:8s} {'whole estimator' + label}: trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s "
+                  f"(cpu {c4 - c3:.2f} s)  {lines} lines, {fusions} fusions", flush=True)
+        inputs = [_estimate_args(a, b, s.camera, config, jax.random.key(k), None, None)
+                  for k, (a, b) in enumerate(zip(frames[:-1], frames[1:]))]
+        times: List[List[float]] = [[] for _ in programs]
+        for rep in range(repeats + 1):          # the first pass warms up, untimed
+            for prog, ts in zip(programs, times):
+                for a in inputs:
+                    t = time.perf_counter()
+                    jax.block_until_ready(prog(*a))
+                    if rep:
+                        ts.append(time.perf_counter() - t)
+        for row, ts in zip(rows[-len(programs):], times):
+            row["pair_ms"] = 1000 * float(np.median(ts))
+        poses = [[np.asarray(prog(*a)[0]) for a in inputs] for prog in programs]
+        rows[-1]["max_dT"] = max(float(np.abs(x - y).max()) for x, y in zip(*poses))
+        print(f"{method:8s} ms per pair: " + ", ".join(f"{r['part']} {r['pair_ms']:.1f}" for r in rows[-len(programs):])
+              + f"; max |T difference| {rows[-1]['max_dT']:.1e}", flush=True)
     return rows
 
 
@@ -170,11 +203,12 @@ def part_rows(seq: Path) -> List[dict]:
             t0 = time.perf_counter()
             lowered = jax.jit(fn).lower(img, img, img, img, T)
             t1, c1 = time.perf_counter(), time.process_time()
-            lowered.compile()
+            compiled = lowered.compile()
             t2, c2 = time.perf_counter(), time.process_time()
             rows.append({"method": "default", "part": f"level {level} ({w}x{h}): {name}", "trace_s": float("nan"),
                          "lower_s": t1 - t0, "compile_s": t2 - t1, "compile_cpu_s": c2 - c1,
-                         "lines": lowered.as_text().count("\n")})
+                         "lines": lowered.as_text().count("\n"),
+                         "fusions": len(re.findall(r"\bkind=k\w+", compiled.as_text()))})
             print(f"level {level} {name:32s} XLA compile {t2 - t1:.2f} s (cpu {c2 - c1:.2f} s)", flush=True)
     return rows
 
@@ -225,13 +259,21 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: 
                   "timed separately; `cpu`: CPU seconds of the whole process during the XLA compilation (less "
                   "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "
                   "parts: pieces of the default estimator at one pyramid level, each compiled alone with that "
-                  "level's pyramid and reference points (the estimator compiles each of them once per level).",
-                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines |",
-                  "| --- | --- | --- | --- | --- | --- | --- |"]
+                  "level's pyramid and reference points (the estimator compiles each of them once per level). "
+                  "fusions: the kernels of the compiled program (XLA generates code for each); `legacy fusion "
+                  "emitters`: the same lowered program compiled with XLA's option `xla_cpu_use_fusion_emitters` "
+                  "off; ms / pair: the compiled program's median time per pair on the sequence's first "
+                  "consecutive pairs, the two programs alternating (same process); max dT: the largest "
+                  "difference of their poses.",
+                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines | fusions | "
+                  "ms / pair | max dT |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for r in stages:
             trace = "n/a" if r["trace_s"] != r["trace_s"] else f"{r['trace_s']:.2f}"  # NaN: traced with lower
+            extra = [str(r["fusions"]) if "fusions" in r else "n/a",
+                     f"{r['pair_ms']:.1f}" if "pair_ms" in r else "n/a",
+                     f"{r['max_dT']:.1e}" if "max_dT" in r else "n/a"]
             lines.append(f"| {r['method']} | {r['part']} | {trace} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
-                         f"{r['compile_cpu_s']:.1f} | {r['lines']} |")
+                         f"{r['compile_cpu_s']:.1f} | {r['lines']} | " + " | ".join(extra) + " |")
     lines += ["", f"Total wall time {total_s:.0f} s."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
