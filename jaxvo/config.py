@@ -301,10 +301,11 @@ class TrackConfig(NamedTuple):
       0.076 m/s), as the estimates just before such a stretch are already pulled by the
       people and give a wrong velocity.
     coast_window: frames over which the coasting velocity is averaged. With ``coast=30`` and
-      a 2 s window (60), Bonn crowd seeds 0-11 gave RPE 1 s 0.061 against 0.065 m/s and ATE
-      0.040 against 0.047 m, but rotation 2.37 against 1.61 deg/s (``experiments/keyframes.py
-      --policy '{"coast": 30, "coast_window": 60}'``, experiments/results/policy_coast60.md):
-      not clearly better, so coasting stays off.
+      a 2 s window (60), Bonn crowd seeds 0-11 give RPE 1 s 0.063 against the default's 0.049
+      m/s, ATE 0.049 against 0.042 m and rotation 2.14 against 1.16 deg/s
+      (``experiments/keyframes.py --policy '{"coast": 30, "coast_window": 60}'``,
+      experiments/results/policy_coast60.md, against bonn_default.md; with the defaults of
+      2026-11-23 it gave ATE 0.040 against 0.047 m), so coasting stays off.
     hold_invalid: an estimate that is not ``valid`` or implies an implausible step from the
       previous frame (beyond ``max_step`` metres or ``max_step_deg`` degrees) is replaced by
       the previous frame's pose (constant position) and reported invalid. 0.05 m and 5 deg
