@@ -198,17 +198,22 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
     ones = pts.weight
     hyps = jnp.int32(0)
     if config.method == "classic":
-        sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
+        with jax.named_scope("refinement"):
+            sol = solve_pose(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw)
         iters = sol.iterations
     elif config.method == "huber":
         inner = config.irls_iterations
-        sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
+        with jax.named_scope("refinement"):
+            sol = irls(T, pts, cur_l, cam, ones, config.huber_k, config.irls_rounds, inner, depth_weight=dw)
         iters = sol.iterations
     else:
         if ransac:  # finer levels: refine the carried-up consensus only
             T_carried = T if config.prior_candidate == "both" else None
             if config.prior_candidate != "raw":  # a plain fit: the written-out LM (jaxopt's iterates)
-                T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
+                with jax.named_scope("prior_fit"):
+                    T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
+            with jax.named_scope("ransac_sampling"):
+                cdf = _sampling_cdf(ref_l, cur_l, cam, T, config)
             rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
                               jax.random.fold_in(key, level),
                               p=config.p, w=config.w, thresh_lum=config.thresh_lum,
@@ -218,19 +223,20 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
                               scoring=config.scoring, offset=offset,
-                              cdf=_sampling_cdf(ref_l, cur_l, cam, T, config), T_other=T_carried)
+                              cdf=cdf, T_other=T_carried)
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)
         for _ in range(config.refine_rounds):
-            mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
-            consensus = jnp.where(mask, pts.weight, 0.0)
-            if config.consensus_weights == "huber":
-                inner = config.irls_iterations
-                sol = irls(T, pts, cur_l, cam, consensus, config.huber_k, config.irls_rounds,
-                           inner, depth_weight=dw)
-            else:
-                sol = solve_pose(T, pts, cur_l, cam, consensus, config.max_iterations, depth_weight=dw)
+            with jax.named_scope("refinement"):
+                mask = inliers(residuals(T, pts, cur_l, cam), config.thresh_lum, config.thresh_depth)
+                consensus = jnp.where(mask, pts.weight, 0.0)
+                if config.consensus_weights == "huber":
+                    inner = config.irls_iterations
+                    sol = irls(T, pts, cur_l, cam, consensus, config.huber_k, config.irls_rounds,
+                               inner, depth_weight=dw)
+                else:
+                    sol = solve_pose(T, pts, cur_l, cam, consensus, config.max_iterations, depth_weight=dw)
             T = sol.T
             iters = iters + sol.iterations
     return (sol.T, offset), (hyps, iters, sol.hessian)
@@ -240,8 +246,11 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     _TRACES["count"] += 1
     h, w = ref_int.shape
     L = _levels(config, w, h)
-    ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth, ref_weight)
-    cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
+    # the named scopes mark the stages in the compiled program's metadata (op_name), where a
+    # profile of it finds them (experiments/kernel_profile.py); they change nothing else
+    with jax.named_scope("pyramid"):
+        ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth, ref_weight)
+        cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
     dw = config.depth_weight if config.terms == "rgbd" else None
     hyps = jnp.zeros(L, jnp.int32)
     iters = jnp.zeros(L, jnp.int32)
@@ -251,7 +260,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
         if config.scan_levels and len(levels) > 1:
             # the group's levels run as one scan, compiled once (not once per level); the level
             # images padded to the group's largest, the point lists to its longest (invalid points)
-            xs, stacks = _level_inputs(ref_pyr, cur_pyr, camera, config, levels)
+            with jax.named_scope("points"):
+                xs, stacks = _level_inputs(ref_pyr, cur_pyr, camera, config, levels)
             step = functools.partial(_level_step, config, key, dw, ransac, stacks)
             carry, (hy, it, hess) = jax.lax.scan(step, carry, xs)
             hessian = hess[-1]
@@ -259,7 +269,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
             hy, it = [], []
             for level in levels:
                 cam = camera.at_level(level)
-                xs = (level, None, None, cam) + _level_points(ref_pyr[level], cam, config, level)
+                with jax.named_scope("points"):
+                    xs = (level, None, None, cam) + _level_points(ref_pyr[level], cam, config, level)
                 step = functools.partial(_level_step, config, key, dw, ransac, (ref_pyr[level], cur_pyr[level]))
                 carry, (h1, i1, hessian) = step(carry, xs)
                 hy.append(h1)
@@ -274,16 +285,17 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
 
     # per-pixel masks and statistics at the finest level processed, all pixels
     # ref_l, cur_l: the finest level processed, ref_l with the brightness fitted there
-    dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
-    hl, wl = ref_l.depth.shape
-    n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
-    ratio = jnp.sum(inl) / n_valid
-    # residual scale on the pixels the final solve trusted (inliers for ransac)
-    wts = inl if config.method == "ransac" else res.valid_int
-    nw = jnp.maximum(jnp.sum(wts), 1)
-    var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
-    info = hessian / jnp.maximum(var, 1e-6)
-    valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
+    with jax.named_scope("final"):
+        dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
+        hl, wl = ref_l.depth.shape
+        n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
+        ratio = jnp.sum(inl) / n_valid
+        # residual scale on the pixels the final solve trusted (inliers for ransac)
+        wts = inl if config.method == "ransac" else res.valid_int
+        nw = jnp.maximum(jnp.sum(wts), 1)
+        var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
+        info = hessian / jnp.maximum(var, 1e-6)
+        valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
                           hyps, iters, valid, info, jnp.sqrt(var),
                           (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl),

@@ -154,10 +154,14 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         return (b * batch_size < k) & (best_count / n_ref <= early_exit_ratio)
 
     def body(state):
+        # named scopes: the stages in the compiled program's metadata (experiments/kernel_profile.py)
         b, T_best, best, best_count, evaluated = state
-        pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius, cdf)
-        Ts = jax.vmap(hypothesis)(pu, pv)
-        quality, counts = jax.vmap(score)(Ts)
+        with jax.named_scope("ransac_sampling"):
+            pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius, cdf)
+        with jax.named_scope("ransac_hypotheses"):
+            Ts = jax.vmap(hypothesis)(pu, pv)
+        with jax.named_scope("ransac_scoring"):
+            quality, counts = jax.vmap(score)(Ts)
         idx = b * batch_size + jnp.arange(batch_size)
         quality = jnp.where(idx < k, quality, -jnp.inf)
         j = jnp.argmax(quality)
@@ -168,11 +172,14 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         evaluated = evaluated + jnp.sum(idx < k)
         return b + 1, T_best, best, best_count, evaluated
 
-    cdf = sampling_cdf(ref_level, radius) if cdf is None else cdf  # once per level, not once per batch
-    q0, c0 = score(T_init)
+    with jax.named_scope("ransac_sampling"):
+        cdf = sampling_cdf(ref_level, radius) if cdf is None else cdf  # once per level, not once per batch
+    with jax.named_scope("ransac_scoring"):
+        q0, c0 = score(T_init)
     T0 = T_init
     if T_other is not None:
-        q1, c1 = score(T_other)
+        with jax.named_scope("ransac_scoring"):
+            q1, c1 = score(T_other)
         better = q1 > q0
         T0, q0, c0 = jnp.where(better, T_other, T0), jnp.where(better, q1, q0), jnp.where(better, c1, c0)
     state = (jnp.int32(0), T0, q0, c0, jnp.int32(0))
