@@ -17,7 +17,9 @@ import math
 import os
 import platform
 import resource
+import re
 import shlex
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -158,6 +160,46 @@ def load_frames(seq: datasets.TumSequence, indices: Optional[Iterable[int]] = No
     """Decode frames into memory (so timings measure the estimator, not PNG decoding)."""
     idx = range(len(seq)) if indices is None else indices
     return [seq.frame(i) for i in idx]
+
+
+def resolve_sequence(arg, name: str, sub: str) -> Path:
+    """A sequence folder: ``arg`` if given, else ``<data root>/<sub>/<name>``; SystemExit naming
+    what is missing."""
+    if arg:
+        return Path(arg)
+    p = datasets.data_root() / sub / name
+    if not p.is_dir():
+        raise SystemExit(f"missing sequence {p} (pass --static/--dynamic or set JAXVO_DATA)")
+    return p
+
+
+def synthetic_sequence(folder, frames: int, size: str = "160x120") -> Path:
+    """A small synthetic sequence (``jaxvo synth seq1``) written to ``folder`` for the scripts'
+    ``--quick`` smoke runs; returns ``folder``."""
+    subprocess.run([sys.executable, "-m", "jaxvo", "synth", "seq1", str(folder), "--frames", str(frames), "--size",
+                    size, "--no-progress"], check=True, capture_output=True, cwd=_REPO)
+    return Path(folder)
+
+
+def median_ms_per_call(functions: Sequence[Callable], inputs: Sequence[tuple], repeats: int) -> List[float]:
+    """Median wall time (ms) of each of ``functions`` called on each argument tuple of ``inputs``
+    and blocked on: a warm-up pass first (compilation), then ``repeats`` passes that alternate
+    between the functions, so that a passing load weighs on all of them."""
+    times: List[List[float]] = [[] for _ in functions]
+    for rep in range(repeats + 1):
+        for fn, ts in zip(functions, times):
+            for a in inputs:
+                t = time.perf_counter()
+                jax.block_until_ready(fn(*a))
+                if rep:
+                    ts.append(time.perf_counter() - t)
+    return [1000 * float(np.median(ts)) for ts in times]
+
+
+def kernel_count(compiled) -> int:
+    """The fused kernels of a compiled JAX program (``jit(f).lower(...).compile()``): XLA
+    generates code for each, which is most of its compile time."""
+    return len(re.findall(r"\bkind=k\w+", compiled.as_text()))
 
 
 def augmented_sequence(real_dir, persons: int = 1, coverage: float = 0.3, seed: int = 0,

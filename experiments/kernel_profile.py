@@ -38,10 +38,8 @@ import gzip
 import json
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
@@ -170,17 +168,7 @@ def profile_set(name: str, seq, frames, pairs, config: Config, repeats: int, top
     inputs = [_estimate_args(frames[a], frames[b], seq.camera, config, jax.random.key(k), None, None)
               for k, (a, b) in enumerate(pairs)]
     sources = kernel_sources(fn.lower(*inputs[0]).compile().as_text())
-    wall = {}
-    for label, f in (("plain", plain), ("annotated", fn)):
-        for a in inputs:                      # compile and warm up
-            jax.block_until_ready(f(*a))
-        ts = []
-        for _ in range(repeats):
-            for a in inputs:
-                t = time.perf_counter()
-                jax.block_until_ready(f(*a))
-                ts.append(time.perf_counter() - t)
-        wall[label] = 1000 * float(np.median(ts))
+    wall = dict(zip(("plain", "annotated"), common.median_ms_per_call((plain, fn), inputs, repeats)))
     # one trace per pass over the pairs: the spread of a stage's time from pass to pass shows how
     # far to trust it (kernels on XLA's threads and the profiler share the machine's cores)
     us, count = collections.Counter(), collections.Counter()
@@ -230,18 +218,11 @@ def main(argv: Optional[List[str]] = None) -> Path:
     try:
         if args.quick:
             tmp = Path(tempfile.mkdtemp(prefix="jaxvo-kernel-profile-seq-"))
-            subprocess.run([sys.executable, "-m", "jaxvo", "synth", "seq1", str(tmp / "seq"), "--frames", "4",
-                            "--size", "160x120", "--no-progress"], check=True, capture_output=True, cwd=common._REPO)
-            paths = {"synthetic": tmp / "seq"}
+            paths = {"synthetic": common.synthetic_sequence(tmp / "seq", 4)}
             args.pairs, args.repeats = 3, 1
         else:
-            paths = {}
-            for label, arg, name, sub in (("static", args.static, STATIC, "tum"), ("dynamic", args.dynamic, DYNAMIC,
-                                                                                  "bonn")):
-                p = Path(arg) if arg else common.datasets.data_root() / sub / name
-                if not p.is_dir():
-                    raise SystemExit(f"missing sequence {p} (pass --static/--dynamic or set JAXVO_DATA)")
-                paths[label] = p
+            paths = {"static": common.resolve_sequence(args.static, STATIC, "tum"),
+                     "dynamic": common.resolve_sequence(args.dynamic, DYNAMIC, "bonn")}
         results = []
         for label, path in paths.items():
             seq, frames, pairs = load_pairs(path, args.pairs, label)

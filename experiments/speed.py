@@ -125,15 +125,6 @@ def load_pairs(path, n_pairs: int, name: str):
     return seq, frames, pairs
 
 
-def _resolve(arg, name, sub):
-    if arg:
-        return Path(arg)
-    p = common.datasets.data_root() / sub / name
-    if not p.is_dir():
-        raise SystemExit(f"missing sequence {p} (pass --static/--dynamic or set JAXVO_DATA)")
-    return p
-
-
 # ----------------------------------------------------------------------------- sections
 
 def time_methods_and_peers(sets, methods, peer_names, repeats, key):
@@ -546,8 +537,8 @@ def main(argv=None) -> Path:
     args = parse_args(argv)
     key = jax.random.key(0)
     t_start = time.perf_counter()
-    static = load_pairs(_resolve(args.static, STATIC, "tum"), args.pairs, "static")
-    dynamic = load_pairs(_resolve(args.dynamic, DYNAMIC, "bonn"), args.pairs, "dynamic")
+    static = load_pairs(common.resolve_sequence(args.static, STATIC, "tum"), args.pairs, "static")
+    dynamic = load_pairs(common.resolve_sequence(args.dynamic, DYNAMIC, "bonn"), args.pairs, "dynamic")
     sets = {"static": static, "dynamic": dynamic}
     rss_start = common.peak_rss_mb()
 

@@ -127,23 +127,15 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
             compiled = lowered.compile({**COMPILER_OPTIONS, **options})
             t4, c4 = time.perf_counter(), time.process_time()
             programs.append(compiled)
-            fusions = len(re.findall(r"\bkind=k\w+", compiled.as_text()))
+            fusions = common.kernel_count(compiled)
             rows.append({"method": method, "part": "whole estimator" + label, "trace_s": t1 - t0, "lower_s": t2 - t1,
                          "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines, "fusions": fusions})
-            print(f"{method:8s} {'whole estimator' + label}: trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  XLA compile {t4 - t3:.2f} s "
-                  f"(cpu {c4 - c3:.2f} s)  {lines} lines, {fusions} fusions", flush=True)
+            print(f"{method:8s} {'whole estimator' + label}: trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  "
+                  f"XLA compile {t4 - t3:.2f} s (cpu {c4 - c3:.2f} s)  {lines} lines, {fusions} fusions", flush=True)
         inputs = [_estimate_args(a, b, s.camera, config, jax.random.key(k), None, None)
                   for k, (a, b) in enumerate(zip(frames[:-1], frames[1:]))]
-        times: List[List[float]] = [[] for _ in programs]
-        for rep in range(repeats + 1):          # the first pass warms up, untimed
-            for prog, ts in zip(programs, times):
-                for a in inputs:
-                    t = time.perf_counter()
-                    jax.block_until_ready(prog(*a))
-                    if rep:
-                        ts.append(time.perf_counter() - t)
-        for row, ts in zip(rows[-len(programs):], times):
-            row["pair_ms"] = 1000 * float(np.median(ts))
+        for row, ms in zip(rows[-len(programs):], common.median_ms_per_call(programs, inputs, repeats)):
+            row["pair_ms"] = ms
         poses = [[np.asarray(prog(*a)[0]) for a in inputs] for prog in programs]
         rows[-1]["max_dT"] = max(float(np.abs(x - y).max()) for x, y in zip(*poses))
         print(f"{method:8s} ms per pair: " + ", ".join(f"{r['part']} {r['pair_ms']:.1f}" for r in rows[-len(programs):])
@@ -208,7 +200,7 @@ def part_rows(seq: Path) -> List[dict]:
             rows.append({"method": "default", "part": f"level {level} ({w}x{h}): {name}", "trace_s": float("nan"),
                          "lower_s": t1 - t0, "compile_s": t2 - t1, "compile_cpu_s": c2 - c1,
                          "lines": lowered.as_text().count("\n"),
-                         "fusions": len(re.findall(r"\bkind=k\w+", compiled.as_text()))})
+                         "fusions": common.kernel_count(compiled)})
             print(f"level {level} {name:32s} XLA compile {t2 - t1:.2f} s (cpu {c2 - c1:.2f} s)", flush=True)
     return rows
 
@@ -219,9 +211,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     tmp = None
     if args.quick:
         tmp = Path(tempfile.mkdtemp(prefix="jaxvo-startup-seq-"))
-        seq = tmp / "seq"
-        subprocess.run([sys.executable, "-m", "jaxvo", "synth", "seq1", str(seq), "--frames", "3", "--size",
-                        "160x120", "--no-progress"], check=True, capture_output=True, cwd=common._REPO)
+        seq = common.synthetic_sequence(tmp / "seq", 3)
         methods = ["classic"]
     else:
         seq = Path(args.sequence) if args.sequence else common.find_named("rgbd_dataset_freiburg2_desk")

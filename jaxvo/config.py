@@ -42,10 +42,10 @@ class Config:
       two thirds of the view, the estimates against the keyframe are right (5-20 mm over 3-6
       frames on Bonn crowd frames 104-112, in a scratch per-frame trace of seed 0) while most
       pixels move, so the stricter rule failed them, the pose was held and the next estimates
-      started from ever worse guesses. With the default tracking (and ``TrackConfig.restart`` 16), Bonn crowd seeds 0-11: RPE 1 s 0.049
-      against 0.065 m/s, ATE 0.042 against 0.050 m (experiments/results/bonn_default.md against
-      policy_restart24.md; the restart's share: see TrackConfig.restart). As a
-      classifier of wrong estimates (experiments/failure_flag.py) the rule stays at precision
+      started from ever worse guesses. With the default tracking (and ``TrackConfig.restart``
+      16), Bonn crowd seeds 0-11: RPE 1 s 0.049 against 0.065 m/s, ATE 0.042 against 0.050 m
+      (experiments/results/bonn_default.md against policy_restart24.md; the restart's share:
+      see TrackConfig.restart). As a classifier of wrong estimates (experiments/failure_flag.py) the rule stays at precision
       1.000, recall 0.973 (0.982 before: one more Bonn pair 30 frames apart passes).
     n_points: *static*, pixels per RANSAC sample (the paper's n = 6).
     patch_radius: *static*, neighbourhood radius around each sampled pixel (1 -> 3x3).
