@@ -67,6 +67,48 @@ def test_votes_follow_the_transform_direction(seq):
     assert good.mean() > bad.mean() + 0.1
 
 
+def _numpy_vote(ref_md, view_md, T, cam, params):
+    """The free-space test written out in float64 NumPy, pixel by pixel in vectors."""
+    h, w = ref_md.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    Z = ref_md.astype(np.float64)
+    P = np.stack([(u - cam.cx) / cam.fx * Z, (v - cam.cy) / cam.fy * Z, Z], -1) @ T[:3, :3].T.astype(np.float64) \
+        + T[:3, 3]
+    z = P[..., 2]
+    zs = np.where(z > 0.1, z, 1.0)
+    pu, pv = np.round(cam.fx * P[..., 0] / zs + cam.cx), np.round(cam.fy * P[..., 1] / zs + cam.cy)
+    inside = (Z > 0) & (z > 0.1) & (pu >= 0) & (pu <= w - 1) & (pv >= 0) & (pv <= h - 1)
+    d = view_md[np.clip(pv, 0, h - 1).astype(int), np.clip(pu, 0, w - 1).astype(int)]
+    ok = inside & (d > 0)
+    tol = params.margin + params.slope * z * z
+    return ok & (d > z + tol), ok & (np.abs(d - z) <= tol)
+
+
+def test_votes_match_a_numpy_warp_and_add_up_over_valid_views(seq):
+    """vote against an independent float64 warp; add_votes sums the views that are valid only."""
+    s, r = seq
+    ref = _md(r[0])
+    views = [_md(r[k]) for k in (3, 6, 12)]
+    Ts = [_T(s, k, 0) for k in (3, 6, 12)]
+    for view, T in zip(views, Ts):
+        behind, seen = (np.asarray(x) for x in S.vote(jnp.asarray(ref), jnp.asarray(view), jnp.asarray(T), MAP_CAM, P))
+        nb, ns = _numpy_vote(ref, view, T, MAP_CAM, P)
+        # float32 against float64: only pixels at a rounding or tolerance boundary may differ
+        assert (behind != nb).mean() < 1e-3 and (seen != ns).mean() < 1e-3
+        assert behind.sum() > 50 and seen.sum() > 1000
+    L0 = np.where(np.arange(ref.size).reshape(ref.shape) % 7 == 0, 5.5, -1.0).astype(np.float32)
+    valid = np.array([True, False, True])
+    L = np.asarray(S.add_votes(jnp.asarray(L0), jnp.asarray(ref), jnp.asarray(np.stack(views)), jnp.asarray(np.stack(Ts)),
+                               jnp.asarray(valid), MAP_CAM, P))
+    want = L0.copy()
+    for view, T, ok in zip(views, Ts, valid):
+        if ok:
+            b, sn = (np.asarray(x) for x in S.vote(jnp.asarray(ref), jnp.asarray(view), jnp.asarray(T), MAP_CAM, P))
+            want = want + P.dynamic_vote * b - P.static_vote * sn
+    np.testing.assert_array_equal(L, np.clip(want, -P.clip, P.clip))
+    assert (L == P.clip).any()
+
+
 def test_propagate_carries_the_map_with_the_camera(seq):
     """A map that is exactly the person's mask on frame 0, carried onto frame 3 with the true motion,
     lands on the person's pixels of frame 3 that show the same surface (the person moved, so only
