@@ -45,7 +45,7 @@ __all__ = ["SegmentParams", "MAP_LEVEL", "map_depth", "vote", "add_votes", "prop
            "static_weight", "upsample"]
 
 # the pyramid level the map lives on: half resolution is ample for person-sized regions
-# and makes a vote cost ~1 ms at 640x480
+# and costs a quarter of full resolution (one view's vote of a 640x480 camera: ~0.15 ms on 2 cores)
 MAP_LEVEL = 1
 
 
