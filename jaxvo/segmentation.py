@@ -38,7 +38,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.camera import Camera
+from jaxvo.camera import Camera, backproject_planes
 from jaxvo.pyramid import downsample, sanitize_depth
 
 __all__ = ["SegmentParams", "MAP_LEVEL", "map_depth", "vote", "add_votes", "propagate", "coherent_regions",
@@ -97,7 +97,7 @@ def _points(depth, camera: Camera):
     h, w = depth.shape
     v = jnp.arange(h, dtype=jnp.float32)[:, None]
     u = jnp.arange(w, dtype=jnp.float32)[None, :]
-    return (u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth
+    return backproject_planes(camera, u, v, depth)
 
 
 def _transfer(ref_depth, T_view_ref, camera: Camera):
