@@ -22,7 +22,11 @@ program (lines of StableHLO text) and of the compiled one (fusions: the kernels 
 for); the same program compiled with XLA's legacy CPU fusion emitters, and both programs' time per
 pair (the trade between compile time and run time that XLA's option offers); and the default
 estimator's parts (prior fit, RANSAC hypotheses and scoring, refinement) at the finest and the
-coarsest level, each compiled alone.
+coarsest level, each compiled alone. Last, where XLA's compilation of the default estimator
+spends its time (``codegen_rows``): its phases (HLO optimisation passes, then code generation:
+emitting each kernel and compiling it with LLVM) and the LLVM compile time of each kernel, added
+up by the estimator stage it belongs to (the named scopes of ``kernel_profile.py``), read from
+XLA's own timing log (``TF_CPP_VMODULE``) in a child process.
 """
 from __future__ import annotations
 
@@ -55,6 +59,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--no-stages", action="store_true", help="skip the trace / lower / compile breakdown")
     ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, classic only (smoke test)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "startup.md", help="markdown output")
+    ap.add_argument("--codegen-child", nargs=2, metavar=("SEQ", "HLO_OUT"), help=argparse.SUPPRESS)
     return ap.parse_args(argv)
 
 
@@ -205,8 +210,95 @@ def part_rows(seq: Path) -> List[dict]:
     return rows
 
 
+# XLA's timing log lines (xla/service/cpu: cpu_compiler.cc, ir_compiler.cc) at TF_CPP_VMODULE level 2
+_XLA_VMODULE = "cpu_compiler=1,ir_compiler=2"
+_XLA_TIME = r"time: (?P<t>[0-9.]+) (?P<u>us|ms|s) "
+_UNITS = {"us": 1e-6, "ms": 1e-3, "s": 1.0}
+
+
+def _seconds(m) -> float:
+    return float(m.group("t")) * _UNITS[m.group("u")]
+
+
+def codegen_child(seq: Path, hlo_out: Path) -> None:
+    """In a process started with XLA's timing log on (see :func:`codegen_rows`): compile the
+    default estimator at the sequence's image size, no cache, and write its optimised HLO."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxvo.config import Config
+    from jaxvo.odometry import _estimate_jit
+    from jaxvo.solvers import COMPILER_OPTIONS
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    camera = common.open_sequence(seq, max_frames=2).camera
+    img = jax.ShapeDtypeStruct((camera.height, camera.width), jnp.float32)
+    args = (img, img, img, img, camera, Config(), jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32), img)
+    lowered = _estimate_jit.trace(*args).lower()
+    print("jaxvo-codegen-start", file=sys.stderr, flush=True)
+    compiled = lowered.compile(COMPILER_OPTIONS)
+    print("jaxvo-codegen-end", file=sys.stderr, flush=True)
+    hlo_out.write_text(compiled.as_text())
+
+
+def parse_codegen_log(log: str, kernels: dict) -> dict:
+    """XLA's timing log of one compilation (the lines between the child's start and end marks)
+    -> {"hlo_passes_s", "codegen_s" (wall: emitting and LLVM-compiling the kernels), "llvm_cpu_s"
+    (LLVM time summed over the kernels, on several threads), "modules", "stages": {stage:
+    [modules, llvm s]}, "top": [(llvm s, kernel, stage, innermost jaxvo source)]}. ``kernels``:
+    :func:`kernel_profile.kernel_sources` of the compiled program. None if the log has no
+    timing lines (another XLA version may log differently)."""
+    from kernel_profile import stage_of
+
+    body = log.split("jaxvo-codegen-start", 1)[-1].split("jaxvo-codegen-end", 1)[0]
+    hlo = [_seconds(m) for m in re.finditer(r"Running HLO passes on \[[^\]]*\] for CPU " + _XLA_TIME, body)]
+    gen = [_seconds(m) for m in re.finditer(r"Compiling \[[^\]]*\] for CPU using JIT " + _XLA_TIME, body)]
+    mods = [(m.group(1), _seconds(m)) for m in re.finditer(r"Compiled LLVM module: (\S+) " + _XLA_TIME, body)]
+    if not mods:
+        return None
+    stages, top = {}, []
+    for module, sec in mods:
+        # __compute_module_<kernel>_kernel_module (sometimes the prefix twice, or _elemental_ before the suffix)
+        name = re.sub(r"^(__compute_module_)+", "", module)
+        name = re.sub(r"(_elemental)?(_kernel_module)?$", "", name)
+        op, src = kernels.get(name, ("", []))
+        stage = stage_of(op) if name in kernels else "other"
+        n, t = stages.get(stage, (0, 0.0))
+        stages[stage] = (n + 1, t + sec)
+        top.append((sec, name, stage, f"{src[0][0]}:{src[0][1]}:{src[0][2]}" if src else ""))
+    top.sort(reverse=True)
+    return {"hlo_passes_s": max(hlo, default=float("nan")), "codegen_s": max(gen, default=float("nan")),
+            "llvm_cpu_s": sum(t for _, t in mods), "modules": len(mods), "stages": stages, "top": top[:10]}
+
+
+def codegen_rows(seq: Path) -> Optional[dict]:
+    """:func:`parse_codegen_log` of the default estimator's compilation in a child process (XLA
+    reads its logging settings when it loads, so they cannot be switched on in this one)."""
+    from kernel_profile import kernel_sources
+
+    with tempfile.TemporaryDirectory(prefix="jaxvo-codegen-") as tmp:
+        hlo = Path(tmp) / "estimate.hlo.txt"
+        env = {**os.environ, "TF_CPP_MIN_LOG_LEVEL": "0", "TF_CPP_VMODULE": _XLA_VMODULE}
+        t = time.perf_counter()
+        r = subprocess.run([sys.executable, str(SCRIPT), "--codegen-child", str(seq), str(hlo)], capture_output=True,
+                           text=True, env=env, cwd=common._REPO)
+        if r.returncode != 0:
+            raise SystemExit(f"error: the compile-time child process failed:\n{r.stderr[-2000:]}")
+        out = parse_codegen_log(r.stderr, kernel_sources(hlo.read_text()))
+    if out is None:
+        print("XLA wrote no timing log: the compile-time breakdown is left out", flush=True)
+        return None
+    print(f"XLA compile of the default estimator: HLO passes {out['hlo_passes_s']:.2f} s, code generation "
+          f"{out['codegen_s']:.2f} s, LLVM {out['llvm_cpu_s']:.2f} cpu s in {out['modules']} kernels "
+          f"(child process {time.perf_counter() - t:.0f} s)", flush=True)
+    return out
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     args = parse_args(argv)
+    if args.codegen_child:
+        codegen_child(Path(args.codegen_child[0]), Path(args.codegen_child[1]))
+        return
     t_start = time.perf_counter()
     tmp = None
     if args.quick:
@@ -224,13 +316,14 @@ def main(argv: Optional[List[str]] = None) -> None:
     try:
         rows = startup_rows(seq, methods)
         stages = [] if args.no_stages else stage_rows(seq, methods) + ([] if args.quick else part_rows(seq))
+        codegen = None if args.no_stages or args.quick else codegen_rows(seq)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    write(args, argv, seq, rows, stages, time.perf_counter() - t_start)
+    write(args, argv, seq, rows, stages, codegen, time.perf_counter() - t_start)
 
 
-def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: float) -> None:
+def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: Optional[dict], total_s: float) -> None:
     lines = common.provenance_md("Start-up: the first pair of `jaxvo run` in a new process", str(SCRIPT), argv)
     lines += [f"Sequence: `{seq.name}`, `jaxvo run SEQ --max-frames 2` (one pair) per process, each method in "
               "its own fresh cache folder (`JAXVO_CACHE_DIR`). `first`: empty folder; `second`: the folder the "
@@ -264,6 +357,23 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], total_s: 
                      f"{r['max_dT']:.1e}" if "max_dT" in r else "n/a"]
             lines.append(f"| {r['method']} | {r['part']} | {trace} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
                          f"{r['compile_cpu_s']:.1f} | {r['lines']} | " + " | ".join(extra) + " |")
+    if codegen:
+        lines += ["", "## Where XLA's compilation of the default estimator goes", "",
+                  "The default estimator compiled once more, in a child process with XLA's timing log on "
+                  f"(`TF_CPP_VMODULE={_XLA_VMODULE}`): HLO optimisation passes "
+                  f"{codegen['hlo_passes_s']:.2f} s, then code generation {codegen['codegen_s']:.2f} s (wall: "
+                  "emitting each kernel, one after the other, and compiling it with LLVM, on several threads), in "
+                  f"which LLVM took {codegen['llvm_cpu_s']:.2f} CPU s over {codegen['modules']} kernels (XLA "
+                  "compiles a kernel once and reuses it for identical fusions). By the estimator stage a kernel "
+                  "belongs to (the named scopes of `experiments/kernel_profile.py`; `other`: loop bookkeeping "
+                  "and the rest):", "",
+                  "| stage | kernels | LLVM cpu s | share |", "| --- | --- | --- | --- |"]
+        total = codegen["llvm_cpu_s"]
+        for stage, (n, t) in sorted(codegen["stages"].items(), key=lambda kv: -kv[1][1]):
+            lines.append(f"| {stage} | {n} | {t:.2f} | {t / total:.2f} |")
+        lines += ["", "The kernels LLVM took longest on:", "", "| kernel | LLVM s | stage | innermost jaxvo source |",
+                  "| --- | --- | --- | --- |"]
+        lines += [f"| {name} | {sec:.3f} | {stage} | `{src}` |" for sec, name, stage, src in codegen["top"]]
     lines += ["", f"Total wall time {total_s:.0f} s."]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")

@@ -280,3 +280,32 @@ def test_kernel_profile_attributes_the_kernels_to_stages(tmp_path):
     # the jaxvo source line of a kernel comes from the compiled program's stack frames
     assert r["kernels"] and sum(k["source"] != "?" for k in r["kernels"]) >= len(r["kernels"]) // 2
     assert "| stage | kernel ms / pair | passes: min - max | share | kernels |" in out.read_text()
+
+
+def test_startup_reads_xla_compile_log_by_stage():
+    """The compile-time breakdown of startup.py: XLA's timing lines between the child's marks,
+    each LLVM module attributed to the stage of its kernel (named scope in the op_name)."""
+    startup = _script("startup")
+    log = "\n".join([
+        "I1125 cpu_compiler.cc:1269] Running HLO passes on [jit_other] for CPU time: 9 s (9 us)",
+        "ir_compiler.cc:293] Compiled LLVM module: __compute_module_before_kernel_module time: 5 s (1 us)",
+        "jaxvo-codegen-start",
+        "I1125 cpu_compiler.cc:1269] Running HLO passes on [jit__estimate] for CPU time: 1.5 s (1500000 us)",
+        "ir_compiler.cc:293] Compiled LLVM module: __compute_module_add_fusion.3_kernel_module time: 20 ms (20000 us)",
+        "ir_compiler.cc:293] Compiled LLVM module: __compute_module___compute_module_dot.4 time: 500 us (500 us)",
+        "ir_compiler.cc:293] Compiled LLVM module: __compute_module_dot.7_elemental_kernel_module time: 1.5 ms (1 us)",
+        "ir_compiler.cc:293] Compiled LLVM module: __compute_module_mystery_kernel_module time: 3 ms (3000 us)",
+        "I1125 cpu_compiler.cc:2094] Compiling [jit__estimate] for CPU using JIT time: 4.25 s (4250000 us)",
+        "jaxvo-codegen-end",
+    ])
+    kernels = {"add_fusion.3": ("jit(_estimate)/refinement/while/body/add", [("solvers.py", "_system", 84)]),
+               "dot.4": ("jit(_estimate)/pyramid/dot_general", []),
+               "dot.7": ("jit(_estimate)/ransac_sampling/x/refinement/dot_general", [])}
+    out = startup.parse_codegen_log(log, kernels)
+    assert out["hlo_passes_s"] == 1.5 and out["codegen_s"] == 4.25 and out["modules"] == 4
+    assert abs(out["llvm_cpu_s"] - 0.025) < 1e-12
+    assert out["stages"]["refinement"] == (2, pytest.approx(0.0215))  # the innermost named scope decides
+    assert out["stages"]["pyramid"] == (1, pytest.approx(0.0005))
+    assert out["stages"]["other"] == (1, pytest.approx(0.003))
+    assert out["top"][0] == (0.02, "add_fusion.3", "refinement", "solvers.py:_system:84")
+    assert startup.parse_codegen_log("no timing lines", kernels) is None
