@@ -196,6 +196,16 @@ def median_ms_per_call(functions: Sequence[Callable], inputs: Sequence[tuple], r
     return [1000 * float(np.median(ts)) for ts in times]
 
 
+def estimator_shapes(camera, config: Config) -> tuple:
+    """Abstract arguments of ``jaxvo.odometry._estimate_jit`` for ``camera``'s image size (float32
+    images, key 0, a (4, 4) initial pose and full-resolution weights), to trace and compile it
+    without frames: ``_estimate_jit.trace(*estimator_shapes(camera, config)).lower()``."""
+    import jax.numpy as jnp
+
+    img = jax.ShapeDtypeStruct((camera.height, camera.width), jnp.float32)
+    return (img, img, img, img, camera, config, jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32), img)
+
+
 def kernel_count(compiled) -> int:
     """The fused kernels of a compiled JAX program (``jit(f).lower(...).compile()``): XLA
     generates code for each, which is most of its compile time."""

@@ -104,7 +104,6 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
     with XLA's fusion emitters and with its legacy ones, and each compiled program's median time
     per pair on the sequence's first ``pairs`` consecutive pairs (``repeats`` passes, alternating)."""
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from jaxvo.config import Config
@@ -113,13 +112,10 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
 
     s = common.open_sequence(seq, max_frames=pairs + 1)
     frames = common.load_frames(s)
-    h, w = s.camera.height, s.camera.width
-    img = jax.ShapeDtypeStruct((h, w), jnp.float32)
     rows = []
     for method in methods:
         config = Config() if method == "default" else Config(method=method)
-        args = (img, img, img, img, s.camera, config, jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32),
-                img)
+        args = common.estimator_shapes(s.camera, config)
         t0 = time.perf_counter()
         traced = _estimate_jit.trace(*args)
         t1 = time.perf_counter()
@@ -224,7 +220,6 @@ def codegen_child(seq: Path, hlo_out: Path) -> None:
     """In a process started with XLA's timing log on (see :func:`codegen_rows`): compile the
     default estimator at the sequence's image size, no cache, and write its optimised HLO."""
     import jax
-    import jax.numpy as jnp
 
     from jaxvo.config import Config
     from jaxvo.odometry import _estimate_jit
@@ -232,9 +227,7 @@ def codegen_child(seq: Path, hlo_out: Path) -> None:
 
     jax.config.update("jax_enable_compilation_cache", False)
     camera = common.open_sequence(seq, max_frames=2).camera
-    img = jax.ShapeDtypeStruct((camera.height, camera.width), jnp.float32)
-    args = (img, img, img, img, camera, Config(), jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32), img)
-    lowered = _estimate_jit.trace(*args).lower()
+    lowered = _estimate_jit.trace(*common.estimator_shapes(camera, Config())).lower()
     print("jaxvo-codegen-start", file=sys.stderr, flush=True)
     compiled = lowered.compile(COMPILER_OPTIONS)
     print("jaxvo-codegen-end", file=sys.stderr, flush=True)

@@ -24,7 +24,6 @@ import numpy as np
 
 import common  # noqa: F401  (sys.path for jaxvo)
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 
 from jaxvo.config import METHODS, Config  # noqa: E402
 from jaxvo.odometry import _estimate_jit, estimate_motion  # noqa: E402
@@ -64,9 +63,7 @@ def parse_variants(text: str) -> dict:
 
 
 def compile_stats(config: Config, camera) -> dict:
-    img = jax.ShapeDtypeStruct((camera.height, camera.width), jnp.float32)
-    args = (img, img, img, img, camera, config, jax.random.key(0), jax.ShapeDtypeStruct((4, 4), jnp.float32), img)
-    lowered = _estimate_jit.trace(*args).lower()
+    lowered = _estimate_jit.trace(*common.estimator_shapes(camera, config)).lower()
     t0, c0 = time.perf_counter(), time.process_time()
     lowered.compile()
     return {"compile_s": time.perf_counter() - t0, "compile_cpu_s": time.process_time() - c0,
