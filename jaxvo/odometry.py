@@ -31,7 +31,7 @@ from jaxvo.camera import Camera
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.frame import Frame, validate_pair
 from jaxvo.pyramid import build_pyramid, level_slice, num_levels_for, stack_padded
-from jaxvo.ransac import inliers, ransac_level, sampling_cdf
+from jaxvo.ransac import inliers, ransac_level, sampling_table
 from jaxvo.residuals import RefPoints, reference_points, residuals, select_points
 from jaxvo.solvers import COMPILER_OPTIONS, irls, jit, solve_pose, solve_pose_small
 
@@ -213,7 +213,8 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                 with jax.named_scope("prior_fit"):
                     T = solve_pose_small(T, pts, cur_l, cam, ones, config.max_iterations, depth_weight=dw).T
             with jax.named_scope("ransac_sampling"):
-                cdf = _sampling_cdf(ref_l, cur_l, cam, T, config)
+                table = sampling_table(_gated(level_slice(ref_l), cur_l, cam, T, config.sample_gate),
+                                       config.patch_radius)
             rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
                               jax.random.fold_in(key, level),
                               p=config.p, w=config.w, thresh_lum=config.thresh_lum,
@@ -223,7 +224,7 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
                               scoring=config.scoring, offset=offset,
-                              cdf=cdf, T_other=T_carried)
+                              table=table, T_other=T_carried)
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)
@@ -331,15 +332,6 @@ def _gated(ref_l, cur_l, cam, T, gate):
 
     # off by default: no dense residual pass per level then (a cond, as gate may be traced)
     return ref_l._replace(weight=jax.lax.cond(gate > 0, gate_weights, lambda w: w, ref_l.weight))
-
-
-def _sampling_cdf(ref_l, cur_l, cam, T, config):
-    """RANSAC's sampling CDF (jaxvo.ransac.sampling_cdf) of the (stacked) reference level, the
-    sample gate applied: the gated branch alone copies the level's entry out of the stack."""
-    def gated():
-        return sampling_cdf(_gated(level_slice(ref_l), cur_l, cam, T, config.sample_gate), config.patch_radius)
-
-    return jax.lax.cond(config.sample_gate > 0, gated, lambda: sampling_cdf(ref_l, config.patch_radius))
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):

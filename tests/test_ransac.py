@@ -11,7 +11,7 @@ import pytest
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
 from jaxvo import pyramid
-from jaxvo.ransac import inliers, num_hypotheses, ransac_level, sample_patches
+from jaxvo.ransac import _nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table
 from jaxvo.residuals import Residuals, reference_points
 
 CAM = DEFAULT.at_level(3)          # 80 x 60
@@ -136,6 +136,28 @@ def test_sample_patches_sparse_valid_pixels():
     assert seen == allowed
 
 
+def test_sampling_table_finds_the_jth_drawable_pixel():
+    """Every rank j maps to the j-th drawable pixel in row-major order (numpy's flatnonzero), on a
+    width that is not a whole number of chunks, in a padded stacked level (its own entry only),
+    and past the end (no drawable pixel) to the flat size."""
+    rng = np.random.default_rng(5)
+    depth = np.where(rng.random((37, 53)) < 0.3, 1.0, 0.0).astype(np.float32)
+    small = np.where(rng.random((20, 29)) < 0.5, 2.0, 0.0).astype(np.float32)
+    levels = [_level(depth), _level(small)]
+    stacked = pyramid.stack_padded(levels)
+    cases = [(levels[0], depth), (stacked._replace(size=stacked.size[1]), small)]
+    for lev, d in cases:
+        table = jax.jit(sampling_table, static_argnames="radius")(lev, radius=1)
+        h, w = d.shape
+        ok = np.zeros(table.ok.shape, bool)
+        ok[1:h - 1, 1:w - 1] = d[1:h - 1, 1:w - 1] > 0
+        want = np.flatnonzero(ok)
+        assert int(table.rows[-1]) == want.size
+        got = jax.jit(_nth_true)(table, jnp.arange(want.size + 1, dtype=jnp.int32))
+        np.testing.assert_array_equal(np.asarray(got[:-1]), want)
+        assert int(got[-1]) == ok.size
+
+
 # --------------------------------------------------------------------------- one level
 
 N_PLANE = np.array([0.1, -0.15, 1.0]) / np.linalg.norm([0.1, -0.15, 1.0])
@@ -220,7 +242,6 @@ def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
     levels) draws the same patch pixels for the same key (the k-th drawable pixel is the same
     pixel), gathers the same reference points, and gives the same residuals, validity included
     at the image border and beyond it (where the pad must not count as image)."""
-    from jaxvo.ransac import sampling_cdf
     from jaxvo.residuals import gather_points, photometric_terms, residuals, rgbd_terms
     rng = np.random.default_rng(0)
     h, w = 48, 64
@@ -231,7 +252,7 @@ def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
     cam = DEFAULT.with_size(w, h).at_level(2)
     small = pyramid.Level(*stack[:5], stack.size[0])       # level 2 (16x12) padded to 64x48
     assert small.depth.shape == (3, h, w)
-    assert int(sampling_cdf(small, 1)[-1]) == int(sampling_cdf(levels[2], 1)[-1]) > 0
+    assert int(sampling_table(small, 1).rows[-1]) == int(sampling_table(levels[2], 1).rows[-1]) > 0
     key = jax.random.key(3)
     pu, pv = sample_patches(key, levels[2], 6, 4, 1)
     qu, qv = sample_patches(key, small, 6, 4, 1)
