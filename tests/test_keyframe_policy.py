@@ -40,7 +40,10 @@ def _frames(n=N):
 @pytest.fixture
 def noisy_estimator(monkeypatch):
     """estimate_motion -> the true T_cur_ref times exp(noise), noise ~ N(0, 3 mm / 0.1 deg), fixed per pair."""
-    truth = _truth()
+    return _fake_estimator(monkeypatch, _truth())
+
+
+def _fake_estimator(monkeypatch, truth):
     calls = []
 
     def fake(ref, cur, camera, config, key, init=None, weights=None):
@@ -132,6 +135,22 @@ def test_failed_frames_coast_at_the_recent_velocity(noisy_estimator, monkeypatch
     short = _run(TrackConfig.keyframes(6, coast=5))
     np.testing.assert_allclose(short.poses[130], short.poses[104], atol=0)
     assert not np.allclose(short.poses[104], short.poses[99])
+
+
+def test_a_fast_camera_is_caught_again_after_failed_frames(monkeypatch):
+    """A camera at 4 cm per frame, under the 5 cm step limit, whose estimates fail for frames
+    100-103 (held poses). The next estimates are right, but 5 frames of motion (20 cm) away from
+    the held guess: the limit grows by the recent speed per held frame, so they are accepted
+    and the track goes on (a fixed limit held every frame after the gap)."""
+    t = np.arange(N) / 30.0
+    fast = geometry.exp(np.stack([0.1 * np.sin(t), 0.2 * t, 0.0 * t, 1.2 * t, 0.2 * np.sin(2 * t), 0 * t], 1))
+    assert 0.035 < np.linalg.norm((geometry.inverse(fast[99]) @ fast[100])[:3, 3]) < 0.045
+    _fake_estimator(monkeypatch, fast)
+    monkeypatch.setattr(f"{__name__}.FAIL", set(range(100, 104)))
+    odo = _run(TrackConfig.keyframes(6))
+    assert not any(odo.valid[99:103]) and all(odo.valid[103:])
+    E = geometry.inverse(geometry.inverse(fast[99]) @ fast[-1]) @ (geometry.inverse(odo.poses[99]) @ odo.poses[-1])
+    assert np.linalg.norm(E[:3, 3]) < 0.2 * np.linalg.norm((geometry.inverse(fast[99]) @ fast[-1])[:3, 3])
 
 
 @pytest.mark.parametrize("restart", [6, 10, 24])
