@@ -310,7 +310,11 @@ class TrackConfig(NamedTuple):
       previous frame (beyond ``max_step`` metres or ``max_step_deg`` degrees) is replaced by
       the previous frame's pose (constant position) and reported invalid. 0.05 m and 5 deg
       per frame (1.5 m/s, 150 deg/s at 30 Hz) is beyond hand-held motion; the paper's chaining
-      (:meth:`frame_to_frame`) keeps jaxvo's earlier 0.1 m / 10 deg.
+      (:meth:`frame_to_frame`) keeps jaxvo's earlier 0.1 m / 10 deg. After held frames the
+      guess is that many frames old, so the limits grow by the camera's mean per-frame motion
+      before them for each (see ``Odometry._stale_allowance``): with the plain limits a camera
+      moving faster than the limit over the frames since its last pose was never caught again
+      (the synthetic handheld-fast held 18-88 of its 89 frames).
     segment: keep the static/dynamic segmentation of the reference and pass it to the
       estimator as per-pixel trust (``estimate_motion(weights=)``).
     switch_ratio: move the reference early when the estimate's inlier ratio over trusted
