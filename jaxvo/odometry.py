@@ -729,7 +729,9 @@ class Odometry:
         T_world_ref = self._chain_pose(ref)
         # the guess is the previous frame's pose, held where its estimate failed: the camera has
         # moved on for all the frames since the last estimate that succeeded
-        T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights, self._stale_allowance())
+        # only RANSAC's failure flag is trusted over the stale guess (see TrackConfig.catch_up)
+        extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
+        T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights, extra)
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)

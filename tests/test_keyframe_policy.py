@@ -141,16 +141,20 @@ def test_a_fast_camera_is_caught_again_after_failed_frames(monkeypatch):
     """A camera at 4 cm per frame, under the 5 cm step limit, whose estimates fail for frames
     100-103 (held poses). The next estimates are right, but 5 frames of motion (20 cm) away from
     the held guess: the limit grows by the recent speed per held frame, so they are accepted
-    and the track goes on (a fixed limit held every frame after the gap)."""
+    and the track goes on (``TrackConfig.catch_up``; a fixed limit holds every frame after the gap)."""
     t = np.arange(N) / 30.0
     fast = geometry.exp(np.stack([0.1 * np.sin(t), 0.2 * t, 0.0 * t, 1.2 * t, 0.2 * np.sin(2 * t), 0 * t], 1))
     assert 0.035 < np.linalg.norm((geometry.inverse(fast[99]) @ fast[100])[:3, 3]) < 0.045
     _fake_estimator(monkeypatch, fast)
     monkeypatch.setattr(f"{__name__}.FAIL", set(range(100, 104)))
-    odo = _run(TrackConfig.keyframes(6))
+    odo = _run(TrackConfig.keyframes(6, catch_up=True))
     assert not any(odo.valid[99:103]) and all(odo.valid[103:])
     E = geometry.inverse(geometry.inverse(fast[99]) @ fast[-1]) @ (geometry.inverse(odo.poses[99]) @ odo.poses[-1])
     assert np.linalg.norm(E[:3, 3]) < 0.2 * np.linalg.norm((geometry.inverse(fast[99]) @ fast[-1])[:3, 3])
+    # without it (the keyframes preset's setting) every frame after the gap is held
+    stuck = _run(TrackConfig.keyframes(6))
+    assert not any(stuck.valid[99:])
+    assert TrackConfig().catch_up and not TrackConfig.frame_to_frame().catch_up
 
 
 @pytest.mark.parametrize("restart", [6, 10, 24])
