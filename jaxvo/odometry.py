@@ -727,9 +727,8 @@ class Odometry:
         j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.trust
         policy, ref, poses = self.policy, self._ref, self.poses
         T_world_ref = self._chain_pose(ref)
-        # the guess is the previous frame's pose, held where its estimate failed: the camera has
-        # moved on for all the frames since the last estimate that succeeded
-        # only RANSAC's failure flag is trusted over the stale guess (see TrackConfig.catch_up)
+        # the guess is the previous frame's pose, held where its estimate failed, while the camera
+        # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)
         extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
         T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights, extra)
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
