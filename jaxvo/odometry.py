@@ -753,12 +753,16 @@ class Odometry:
         of the last ``policy.coast_window`` frames while fewer than ``policy.coast`` frames in a
         row have failed (a mean over 1/3 s: single estimates are off by several mm)."""
         P = self.poses
-        failed = self._failed_run()
-        n = min(self.policy.coast_window, j - 1)
-        if failed >= self.policy.coast or n < 1:
+        motion, n = self._recent_motion(j - 1)
+        if self._failed_run() >= self.policy.coast or n < 1:
             return P[j - 1].copy()
-        xi = geometry.log(geometry.inverse(P[j - 1 - n]) @ P[j - 1]) / n
-        return P[j - 1] @ geometry.exp(xi)
+        return P[j - 1] @ geometry.exp(geometry.log(motion) / n)
+
+    def _recent_motion(self, end: int):
+        """(T_start_end (4, 4), n): the motion over the last n = min(``coast_window``, end) frames
+        up to frame ``end`` (the identity and n = 0 at the first frame)."""
+        n = min(self.policy.coast_window, end)
+        return geometry.inverse(self.poses[end - n]) @ self.poses[end], n
 
     def _failed_run(self) -> int:
         """How many of the latest frames in a row failed (and were held)."""
@@ -786,13 +790,12 @@ class Odometry:
         is a bigger step from it and fails too (on the synthetic handheld-fast, seeds 0-3, 18 to
         88 of 89 frames held, ATE 0.12-0.16 m)."""
         failed = self._failed_run()
-        last = len(self.poses) - 1 - failed          # the latest frame whose pose was estimated
-        n = min(self.policy.coast_window, last)
         if failed == 0:
             return 0.0, 0.0
+        # up to the latest frame whose pose was estimated
+        d, n = self._recent_motion(len(self.poses) - 1 - failed)
         if n < 1:   # no motion measured yet: the per-frame limits themselves
             return failed * self.policy.max_step, failed * self.policy.max_step_deg
-        d = geometry.inverse(self.poses[last - n]) @ self.poses[last]
         return (failed * np.linalg.norm(d[:3, 3]) / n,
                 failed * np.degrees(geometry.rotation_angle(d[:3, :3])) / n)
 
