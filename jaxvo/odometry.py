@@ -20,6 +20,7 @@ config); numeric config fields are traced, so ``jax.vmap`` over a field of
 from __future__ import annotations
 
 import functools
+import threading
 from typing import Iterable, NamedTuple, Optional
 
 import jax
@@ -621,6 +622,46 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
     return segmentation.coherent_regions(L, new_md, camera, params)
 
 
+def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
+    """Compile the segmentation's programs that the first pair runs after its estimate
+    (:func:`_trust_ratios`, :func:`_update_map`, :func:`_new_reference_map` with few views), in a
+    background thread started at the first frame; returns the thread.
+
+    In a new process the first pair is mostly the estimator's compilation: first its trace
+    (Python, one core), then XLA (both cores, after a serial phase). These programs, compiled
+    one after the other behind it, added about a second; compiled beside the trace they are
+    ready when it needs them. The calls later find them in JAX's caches (or, if one is not done
+    yet, compile it themselves); an error here is left for that call to raise. Not a daemon
+    thread: an interpreter that exits while XLA compiles in a daemon thread may crash.
+
+    L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; shape: the
+    frames' (H, W); camera: the map level's camera."""
+    def abstract(x, lead=()):
+        return jax.ShapeDtypeStruct(lead + tuple(x.shape), x.dtype)
+
+    def compile_all():
+        Lz, mz = abstract(L), abstract(md)
+        T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
+        n = _FEW_VIEWS
+        # the estimate's masks: committed to the device where they come from an exported program
+        # (jaxvo.aot), not where they come from the jit; another sharding is another compilation
+        masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s)
+                 for s in (None, jax.sharding.SingleDeviceSharding(jax.devices()[0]))]
+        weights = jax.eval_shape(_trust, Lz, shape)
+        todo = tuple((_trust_ratios, (m, m, weights)) for m in masks) + ((_update_map, (Lz, mz, mz, T, camera, params)),
+                (_new_reference_map, (Lz, mz, mz, T, abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32),
+                                      jax.ShapeDtypeStruct((n,), jnp.bool_), camera, params)))
+        for fn, args in todo:
+            try:
+                fn.lower(*args).compile()
+            except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
+                return
+
+    thread = threading.Thread(target=compile_all, name="jaxvo-compile-map")
+    thread.start()
+    return thread
+
+
 # views that vote on a new reference's segmentation: one of two fixed numbers, so that the
 # map update compiles at most twice (missing views are padding with valid = False)
 _VIEWS = 12
@@ -711,6 +752,7 @@ class Odometry:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
+                _compile_map_programs(self._L, self._depths[0], tuple(frame.depth.shape), self._map_cam, self.params)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
