@@ -13,7 +13,10 @@ process three times:
 Reported per run: ``first pair s`` (jaxvo's summary line ``compile``: from the start of tracking
 to the first pair's pose, reading, tracing, compiling and running it) and ``process s`` (the
 wall time of the whole process, interpreter start and imports included, for one pair).
-``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy).
+``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy). The
+three runs are repeated ``--repeats`` times (default 3; a fresh folder each time, the methods
+alternating) and the table gives each one's median and range: on a small shared machine one
+fresh-process run varies by a second or more.
 
 Then, unless ``--no-stages``, where the first compilation goes: the estimator alone
 (``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
@@ -41,6 +44,8 @@ import time
 from pathlib import Path
 from typing import List, Optional
 
+import numpy as np
+
 import common  # noqa: F401  (sys.path for jaxvo)
 
 from jaxvo import cache  # noqa: E402
@@ -56,6 +61,8 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--sequence", default=None, help="sequence folder (default: the bundled fr2/desk excerpt)")
     ap.add_argument("--methods", default="default,classic,huber",
                     help=f"comma list of {', '.join(METHOD_ARGS)} (default: %(default)s)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="passes of the fresh-process runs; the table gives their median and range (default: %(default)s)")
     ap.add_argument("--no-stages", action="store_true", help="skip the trace / lower / compile breakdown")
     ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, classic only (smoke test)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "startup.md", help="markdown output")
@@ -77,20 +84,30 @@ def run_once(seq: Path, method: str, folder: Path, out: Path) -> dict:
     return {"first_pair_s": float(m.group(1)) if m else float("nan"), "process_s": wall}
 
 
-def startup_rows(seq: Path, methods: List[str]) -> List[dict]:
+def startup_rows(seq: Path, methods: List[str], repeats: int = 1) -> List[dict]:
+    """Per method and run: the median first-pair and process times of ``repeats`` passes (each in
+    its own fresh cache folder, the methods alternating) and their ranges."""
+    times: dict = {}
+    for rep in range(repeats):
+        for method in methods:
+            folder = Path(tempfile.mkdtemp(prefix="jaxvo-startup-"))
+            try:
+                for run in RUNS:
+                    if run == "no export":
+                        shutil.rmtree(folder / "exported", ignore_errors=True)
+                    r = run_once(seq, method, folder, folder / "traj.txt")
+                    times.setdefault((method, run), []).append(r)
+                    print(f"{method:8s} {run:10s} pass {rep + 1}: first pair {r['first_pair_s']:6.1f} s  "
+                          f"process {r['process_s']:6.1f} s", flush=True)
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)
     rows = []
-    for method in methods:
-        folder = Path(tempfile.mkdtemp(prefix="jaxvo-startup-"))
-        try:
-            for run in RUNS:
-                if run == "no export":
-                    shutil.rmtree(folder / "exported", ignore_errors=True)
-                r = run_once(seq, method, folder, folder / "traj.txt")
-                rows.append({"method": method, "run": run, **r})
-                print(f"{method:8s} {run:10s} first pair {r['first_pair_s']:6.1f} s  process {r['process_s']:6.1f} s",
-                      flush=True)
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)
+    for (method, run), rs in times.items():
+        row = {"method": method, "run": run}
+        for k in ("first_pair_s", "process_s"):
+            v = [r[k] for r in rs]
+            row.update({k: float(np.median(v)), k + "_min": min(v), k + "_max": max(v)})
+        rows.append(row)
     return rows
 
 
@@ -307,13 +324,19 @@ def main(argv: Optional[List[str]] = None) -> None:
         if bad:
             raise SystemExit(f"error: --methods: unknown {', '.join(bad)} (choose from {', '.join(METHOD_ARGS)})")
     try:
-        rows = startup_rows(seq, methods)
+        rows = startup_rows(seq, methods, 1 if args.quick else max(1, args.repeats))
         stages = [] if args.no_stages else stage_rows(seq, methods) + ([] if args.quick else part_rows(seq))
         codegen = None if args.no_stages or args.quick else codegen_rows(seq)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     write(args, argv, seq, rows, stages, codegen, time.perf_counter() - t_start)
+
+
+def _spread(row: dict, key: str) -> str:
+    """``median [min-max]`` of a startup row's passes (the median alone for one pass)."""
+    lo, hi = row.get(key + "_min", row[key]), row.get(key + "_max", row[key])
+    return f"{row[key]:.1f}" + (f" [{lo:.1f}-{hi:.1f}]" if hi > lo else "")
 
 
 def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: Optional[dict], total_s: float) -> None:
@@ -325,9 +348,12 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
               "still happen). `first pair s`: jaxvo's summary line `compile` (from the start of tracking to "
               "the first pair's pose); `process s`: the whole process, interpreter start and imports included. "
               "`default`: `jaxvo run` without options (ransac with the keyframe/segmentation policy). "
-              "Other processes may share this machine: compare rows of one run.", "",
+              "Each run repeated in `--repeats` passes (each in a fresh folder, the methods alternating): the "
+              "median, and in brackets the range, of the passes. Other processes may share this machine: "
+              "compare rows of one run.", "",
               "| method | run | first pair s | process s |", "| --- | --- | --- | --- |"]
-    lines += [f"| {r['method']} | {r['run']} | {r['first_pair_s']:.1f} | {r['process_s']:.1f} |" for r in rows]
+    lines += [f"| {r['method']} | {r['run']} | {_spread(r, 'first_pair_s')} | {_spread(r, 'process_s')} |"
+              for r in rows]
     if stages:
         lines += ["", "## Where the first compilation goes", "",
                   "The estimator alone (`jaxvo.odometry._estimate_jit`) at the sequence's image size, in one "
