@@ -648,9 +648,10 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
         masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s)
                  for s in (None, jax.sharding.SingleDeviceSharding(jax.devices()[0]))]
         weights = jax.eval_shape(_trust, Lz, shape)
-        todo = tuple((_trust_ratios, (m, m, weights)) for m in masks) + ((_update_map, (Lz, mz, mz, T, camera, params)),
-                (_new_reference_map, (Lz, mz, mz, T, abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32),
-                                      jax.ShapeDtypeStruct((n,), jnp.bool_), camera, params)))
+        views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
+        todo = [(_trust_ratios, (m, m, weights)) for m in masks]
+        todo += [(_update_map, (Lz, mz, mz, T, camera, params)),
+                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
         for fn, args in todo:
             try:
                 fn.lower(*args).compile()
@@ -723,6 +724,7 @@ class Odometry:
         self._L = None                  # dynamic log-odds of the reference, map level
         self._dynamic = 1.0             # fraction of the reference's valid pixels the map does not trust
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
+        self._compiling = None          # the thread compiling the segmentation's programs ahead
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -752,7 +754,8 @@ class Odometry:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
-                _compile_map_programs(self._L, self._depths[0], tuple(frame.depth.shape), self._map_cam, self.params)
+                self._compiling = _compile_map_programs(self._L, self._depths[0], tuple(frame.depth.shape),
+                                                        self._map_cam, self.params)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry, segmentation as S
-from jaxvo.camera import DEFAULT
+from jaxvo.camera import DEFAULT, Camera
 from jaxvo.odometry import Config, Odometry, TrackConfig, trace_count, track
 from jaxvo.synthetic import make_sequence
 
@@ -246,3 +246,22 @@ def test_frame_to_frame_policy_has_no_segmentation(frames320):
           callback=steps.append)
     assert [st.reference for st in steps] == [0, 1, 2]
     assert all(st.static_mask is None for st in steps)
+
+
+def test_map_programs_compiled_ahead_are_the_ones_called(caplog):
+    """The segmentation's programs compiled in the background from the first frame have the
+    signatures of the later calls: those calls compile nothing (a mismatch, e.g. a dtype or a
+    sharding, would compile every program twice, once for nothing)."""
+    cam = Camera(150.0, 150.0, 95.5, 71.5, 192, 144)   # an image size no other test compiles for
+    s = make_sequence("seq3", frames=4, seed=1, camera=cam)
+    frames = [s.render(k).frame() for k in range(len(s))]
+    odo = Odometry(cam, Config(), jax.random.key(0))
+    odo.add(frames[0])
+    odo._compiling.join()
+    names = ("_trust_ratios", "_update_map", "_new_reference_map")
+    with jax.log_compiles(True), caplog.at_level("DEBUG", logger="jax"):
+        steps = [odo.add(f) for f in frames[1:]]
+    compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+    assert any("_estimate" in m or "call" in m for m in compiled)      # the log is captured
+    assert not [m for m in compiled if any(f"jit({n})" in m for n in names)]
+    assert len({st.reference for st in steps}) >= 2                     # a new reference map was made
