@@ -611,8 +611,11 @@ def _trust_ratios(inlier_mask, valid_mask, weights):
 
 
 @jax.jit
-def _update_map(L, ref_md, cur_md, T_cur_ref, camera, params):
-    return segmentation.add_votes(L, ref_md, cur_md[None], T_cur_ref[None], jnp.ones(1, bool), camera, params)
+def _update_map(L, ref_md, cur_md, T_cur_ref, inlier_mask, valid_mask, occluded_mask, camera, params):
+    """The map after an estimate (:func:`segmentation.add_current_vote`); the masks are the
+    estimate's, and its outliers hidden in the current frame (occluded) say nothing."""
+    photo = segmentation.photometric_outliers(valid_mask & ~inlier_mask & ~occluded_mask, valid_mask, L.shape)
+    return segmentation.add_current_vote(L, ref_md, cur_md, T_cur_ref, photo, camera, params)
 
 
 @jax.jit
@@ -650,8 +653,8 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
         weights = jax.eval_shape(_trust, Lz, shape)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         todo = [(_trust_ratios, (m, m, weights)) for m in masks]
-        todo += [(_update_map, (Lz, mz, mz, T, camera, params)),
-                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
+        todo += [(_update_map, (Lz, mz, mz, T, m, m, m, camera, params)) for m in masks]
+        todo += [(_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
         for fn, args in todo:
             try:
                 fn.lower(*args).compile()
@@ -787,8 +790,9 @@ class Odometry:
         if policy.segment:
             static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
             if valid:  # the current frame's view of the reference, at the estimated pose
-                self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T),
-                                      self._map_cam, self.params)
+                occluded = jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
+                self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T), est.inlier_mask,
+                                      est.valid_mask, occluded, self._map_cam, self.params)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
         self._maybe_switch(j, T, ratio_static)
         return result
@@ -970,7 +974,8 @@ class Odometry:
 
 
 def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
-          T_world_first=None, callback=None, policy: Optional[TrackConfig] = None) -> Track:
+          T_world_first=None, callback=None, policy: Optional[TrackConfig] = None,
+          segment_params: Optional[segmentation.SegmentParams] = None) -> Track:
     """Run the odometry along a sequence: a loop of :meth:`Odometry.add` over ``frames``.
 
     Frames may be any iterable (e.g. a lazy sequence); only the frames that may still serve
@@ -980,9 +985,10 @@ def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = No
     ``jax.random.fold_in(key, j - 1)``. Poses accumulate on the host in float64:
     ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
     ``callback(step)`` is called with a :class:`TrackStep` after each frame j >= 1 (e.g. to
-    write the trajectory as it grows).
+    write the trajectory as it grows). ``segment_params``: the segmentation's numbers
+    (default :class:`jaxvo.segmentation.SegmentParams`).
     """
-    odo = Odometry(camera, config, key, policy, T_world_first)
+    odo = Odometry(camera, config, key, policy, T_world_first, segment_params)
     n = 0
     for frame in frames:
         step = odo.add(frame)

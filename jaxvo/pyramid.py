@@ -101,7 +101,7 @@ def _quads(x):
     return x[0::2, 0::2], x[0::2, 1::2], x[1::2, 0::2], x[1::2, 1::2]
 
 
-def _block_mean(x):
+def block_mean(x):
     """2x2 block mean of (h, w) ``x`` -> (h//2, w//2)."""
     a, b, c, d = _quads(x)
     return 0.25 * ((a + b) + (c + d))
@@ -112,7 +112,7 @@ def downsample(intensity, depth):
     d = _quads(depth)
     n = sum((q > 0).astype(jnp.float32) for q in d)
     dsum = (d[0] + d[1]) + (d[2] + d[3])
-    return _block_mean(intensity), jnp.where(n > 0, dsum / jnp.maximum(n, 1.0), 0.0)
+    return block_mean(intensity), jnp.where(n > 0, dsum / jnp.maximum(n, 1.0), 0.0)
 
 
 def gradients(intensity):
@@ -153,7 +153,7 @@ def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0, weight=None)
     for l in range(num_levels):
         if l > 0:
             i, d = downsample(i, d)
-            wt = _block_mean(wt)
+            wt = block_mean(wt)
         gu, gv = gradients(i)
         levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d), wt))
     return tuple(levels)

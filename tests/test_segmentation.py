@@ -109,6 +109,48 @@ def test_votes_match_a_numpy_warp_and_add_up_over_valid_views(seq):
     assert (L == P.clip).any()
 
 
+def test_photometric_outliers_at_the_map_level():
+    """Block means down to the map level (a map pixel is an outlier when at least half of its
+    valid pixels are and at least half of it is valid), repetition up from a coarser estimate."""
+    rng = np.random.default_rng(3)
+    out, val = rng.random((12, 16)) < 0.4, rng.random((12, 16)) < 0.7
+    got = np.asarray(S.photometric_outliers(jnp.asarray(out & val), jnp.asarray(val), (6, 8)))
+    o = (out & val).reshape(6, 2, 8, 2).sum(axis=(1, 3))
+    v = val.reshape(6, 2, 8, 2).sum(axis=(1, 3))
+    np.testing.assert_array_equal(got, (v >= 2) & (2 * o >= v))
+    assert 0 < got.sum() < got.size
+    coarse = np.asarray(S.photometric_outliers(jnp.asarray(out[:3, :4] & val[:3, :4]), jnp.asarray(val[:3, :4]), (6, 8)))
+    np.testing.assert_array_equal(coarse, np.repeat(np.repeat(out[:3, :4] & val[:3, :4], 2, 0), 2, 1))
+
+
+def test_current_vote_counts_unexplained_appearance_as_motion(seq):
+    """An estimate at the true pose from frame 0 to 3 of seq2: free space says nothing yet on the
+    person (it is still where it was along 98 % of its rays), but its texture moved. The outliers the
+    estimate leaves there vote dynamic (photo_vote) instead of static; the room's vote is unchanged."""
+    from jaxvo.odometry import estimate_motion
+    s, r = seq
+    T = _T(s, 3, 0)
+    est = estimate_motion(r[0].frame(), r[3].frame(), CAM, Config(), jax.random.key(0), init=T)
+    ref, cur = _md(r[0]), _md(r[3])
+    photo = np.asarray(S.photometric_outliers(est.valid_mask & ~est.inlier_mask & ~est.occluded_mask,
+                                              est.valid_mask, ref.shape))
+    moving = _mask_md(r[0].moving_mask)
+    # measured: 0.71 of them on the person, 0.3 % of the room
+    assert (photo & moving).sum() > 0.6 * photo.sum() and (photo & ~moving).mean() < 0.01
+    L0 = np.full(ref.shape, P.prior, np.float32)
+    L = np.asarray(S.add_current_vote(jnp.asarray(L0), jnp.asarray(ref), jnp.asarray(cur), jnp.asarray(T),
+                                      jnp.asarray(photo), MAP_CAM, P))
+    behind, seen = (np.asarray(x) for x in S.vote(jnp.asarray(ref), jnp.asarray(cur), jnp.asarray(T), MAP_CAM, P))
+    want = L0 + P.dynamic_vote * behind + np.where(seen & photo, P.photo_vote, -P.static_vote * seen)
+    np.testing.assert_array_equal(L, np.clip(want, -P.clip, P.clip))
+    assert (seen & photo & moving).sum() > 100
+    # without unexplained pixels it is add_votes with the one view
+    L_none = S.add_current_vote(jnp.asarray(L0), jnp.asarray(ref), jnp.asarray(cur), jnp.asarray(T),
+                                jnp.zeros(ref.shape, bool), MAP_CAM, P)
+    np.testing.assert_array_equal(np.asarray(L_none), np.asarray(S.add_votes(
+        jnp.asarray(L0), jnp.asarray(ref), jnp.asarray(cur)[None], jnp.asarray(T)[None], jnp.ones(1, bool), MAP_CAM, P)))
+
+
 def test_propagate_carries_the_map_with_the_camera(seq):
     """A map that is exactly the person's mask on frame 0, carried onto frame 3 with the true motion,
     lands on the person's pixels of frame 3 that show the same surface (the person moved, so only
@@ -217,7 +259,7 @@ def test_odometry_segments_the_persons_and_tracks(frames320):
         fp += (dyn & ~moving).sum()
         fn += (~dyn & moving).sum()
     precision, recall = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
-    # measured: precision 0.87, recall 0.25 (0.8 s of slow walkers: little space has been seen
+    # measured: precision 0.88, recall 0.54 (0.8 s of slow walkers: little space has been seen
     # vacated yet; the issue's recall target of 0.8 is not met here)
     assert precision > 0.75 and recall > 0.15, (precision, recall)
     E = geometry.inverse(s.poses[-1]) @ s.poses[0] @ geometry.inverse(tr.poses[0]) @ tr.poses[-1]
