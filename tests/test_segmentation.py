@@ -236,7 +236,7 @@ def test_odometry_compiles_once(frames320):
 
 def _jitted():
     from jaxvo import odometry as O
-    return [O._map_depth, O._trust, O._trust_ratios, O._update_map, O._new_reference_map]
+    return [O._map_depth, O._trust, O._trust_ratios, O._unexplained, O._update_map, O._new_reference_map]
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
@@ -300,7 +300,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog):
     odo = Odometry(cam, Config(), jax.random.key(0))
     odo.add(frames[0])
     odo._compiling.join()
-    names = ("_trust_ratios", "_update_map", "_new_reference_map")
+    names = ("_trust_ratios", "_unexplained", "_update_map", "_new_reference_map")
     with jax.log_compiles(True), caplog.at_level("DEBUG", logger="jax"):
         steps = [odo.add(f) for f in frames[1:]]
     compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
