@@ -173,7 +173,12 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
             _write(path, bytes(exp.serialize()))
         except OSError:
             pass  # a read-only or full folder: this process still runs the program
-    return jax.jit(exp.call, compiler_options=compiler_options)
+    # every input placed on the one device the program was exported for: without it an input that
+    # is committed to the device in one call (e.g. a weight map computed from an earlier
+    # estimate's outputs, which this program commits) and a host array in another compile the
+    # whole program twice
+    return jax.jit(exp.call, in_shardings=jax.sharding.SingleDeviceSharding(jax.devices()[0]),
+                   compiler_options=compiler_options)
 
 
 def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_options: Optional[dict] = None) -> tuple:

@@ -653,18 +653,16 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
         Lz, mz = abstract(L), abstract(md)
         T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
         n = _FEW_VIEWS
-        # the estimate's masks (and what is computed from them alone): committed to the device where
-        # they come from an exported program (jaxvo.aot), not where they come from the jit; another
-        # sharding is another compilation
+        # the estimate's masks: committed to the device where they come from an exported program
+        # (jaxvo.aot), not where they come from the jit; another sharding is another compilation
         shardings = (None, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
         weights = jax.eval_shape(_trust, Lz, shape)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
-        todo = []
-        for s in shardings:
-            m, u = (jax.ShapeDtypeStruct(x, jnp.bool_, sharding=s) for x in (shape, md.shape))
-            todo += [(_trust_ratios, (m, m, weights)), (_unexplained, (m, m, m, tuple(md.shape))),
-                     (_update_map, (Lz, mz, mz, T, u, camera, params))]
-        todo += [(_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
+        masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
+        todo = [(_trust_ratios, (m, m, weights)) for m in masks]
+        todo += [(_unexplained, (m, m, m, tuple(md.shape))) for m in masks]
+        todo += [(_update_map, (Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera, params)),
+                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
         for fn, args in todo:
             try:
                 fn.lower(*args).compile()
@@ -801,7 +799,11 @@ class Odometry:
             static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
             if valid:  # the current frame's view of the reference, at the estimated pose
                 occluded = jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
-                unexplained = _unexplained(est.inlier_mask, est.valid_mask, occluded, self._L.shape)
+                # through the host (77 kB at 320x240): from an exported program (jaxvo.aot) the
+                # masks are committed to the device, and a committed input would commit the map
+                # and everything computed from it, the estimate's weights included, so the map's
+                # programs and the estimator would each compile a second time
+                unexplained = np.asarray(_unexplained(est.inlier_mask, est.valid_mask, occluded, self._L.shape))
                 self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T), unexplained,
                                       self._map_cam, self.params)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
