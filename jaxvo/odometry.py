@@ -634,8 +634,7 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
 def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
     """Compile the segmentation's programs that the first pair runs after its estimate
     (:func:`_trust_ratios`, :func:`_unexplained`, :func:`_update_map`, :func:`_new_reference_map`
-    with few views), in a
-    background thread started at the first frame; returns the thread.
+    with few views), in a background thread started at the first frame; returns the thread.
 
     In a new process the first pair is mostly the estimator's compilation: first its trace
     (Python, one core), then XLA (both cores, after a serial phase). These programs, compiled

@@ -164,8 +164,8 @@ def add_votes(L, ref_depth, view_depths, T_views_ref, valid, camera: Camera, par
 
 
 def photometric_outliers(outlier, valid, shape):
-    """An estimate's outliers -> (h, w) bool at the map level (``shape``): a map pixel whose
-    valid pixels are at least half outliers, and at least half of them valid.
+    """An estimate's outliers -> (h, w) bool at the map level (``shape``): a map pixel at least
+    half of whose pixels are valid, and at least half of those outliers.
 
     outlier, valid: (H', W') bool at the estimate's finest level (2x2 block means down to the
     map level, or pixel repetition up to it when the estimate stopped at a coarser level)."""
