@@ -177,8 +177,13 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
     # is committed to the device in one call (e.g. a weight map computed from an earlier
     # estimate's outputs, which this program commits) and a host array in another compile the
     # whole program twice
-    return jax.jit(exp.call, in_shardings=jax.sharding.SingleDeviceSharding(jax.devices()[0]),
-                   compiler_options=compiler_options)
+    return jax.jit(exp.call, in_shardings=sharding(), compiler_options=compiler_options)
+
+
+def sharding() -> jax.sharding.Sharding:
+    """Where an exported program's inputs are placed and its outputs are committed: the first
+    device (a caller's program that takes those outputs compiles for this sharding)."""
+    return jax.sharding.SingleDeviceSharding(jax.devices()[0])
 
 
 def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_options: Optional[dict] = None) -> tuple:

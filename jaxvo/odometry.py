@@ -654,7 +654,7 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
         n = _FEW_VIEWS
         # the estimate's masks: committed to the device where they come from an exported program
         # (jaxvo.aot), not where they come from the jit; another sharding is another compilation
-        shardings = (None, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
+        shardings = (None, aot.sharding())
         weights = jax.eval_shape(_trust, Lz, shape)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
