@@ -96,7 +96,7 @@ def parse_args(argv=None):
     bad = [s for s in a.sequences if s not in SEQUENCES]
     if bad:
         ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(SEQUENCES)}")
-    a.augment = _augment_list(a.augment, ap)
+    a.augment = augment_list(a.augment, ap)
     try:
         a.policy_obj = TrackConfig.from_json(a.policy) if a.policy else TrackConfig()
         a.policy_obj.validate()
@@ -118,7 +118,7 @@ def parse_args(argv=None):
     return a
 
 
-def _augment_list(text: Optional[str], ap) -> List[Path]:
+def augment_list(text: Optional[str], ap) -> List[Path]:
     if not text:
         return []
     if text.strip() == "tum":
@@ -176,9 +176,11 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
                 config: Optional[dict] = None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
-    outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates."""
+    outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
+    Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask."""
     cam = seq.camera
     counts = np.zeros(4, np.int64)
+    per_step = []
     cover = np.array([m.mean() for m in true_masks])
     shown, secs, ratio, last = [None], [], [], [time.perf_counter()]
 
@@ -187,6 +189,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
         pred, val = moving_mask(est, cam.width, cam.height, step.static_mask, valid_too=True)
         s = metrics.mask_scores(pred, true_masks[step.reference], val)
         counts[:] += (s.tp, s.fp, s.fn, s.tn)
+        per_step.append((step.frame, step.reference, s.tp, s.fp, s.fn, s.tn))
         if shown[0] is None or cover[step.reference] > cover[shown[0][2]]:  # the most covered reference
             shown[0] = (~pred, val, step.reference)
         ratio.append(float(est.inlier_ratio))
@@ -201,7 +204,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
             "mask": {"precision": tp / (tp + fp) if tp + fp else None, "recall": tp / (tp + fn) if tp + fn else None,
                      "iou": tp / (tp + fp + fn) if tp + fp + fn else None, "tp": tp, "fp": fp, "fn": fn, "tn": tn},
-            "shown": shown[0]}
+            "shown": shown[0], "mask_steps": np.asarray(per_step, np.int64).reshape(-1, 6)}
 
 
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
