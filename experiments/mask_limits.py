@@ -11,6 +11,9 @@ why, on sequences with exact moving masks and exact poses, in two parts:
   (the view saw a surface at their depth: counted as static evidence), with the **ground-truth**
   relative pose, so pose error plays no part. A body that moves sideways within its own
   silhouette, or keeps its place in the image, leaves only a thin strip of vacated space.
+* **Appearance, ideal.** Of the same pixels at full resolution, the share the estimator's inlier
+  test rejects at the ground-truth pose (what its outliers, and the map's appearance vote, can
+  flag where free space cannot).
 * **The default odometry's moving mask** (as ``experiments/paper_sequences.py`` scores it,
   :func:`jaxvo.mapping.moving_mask`), pooled over the first ``--early`` pairs and over the rest.
 
@@ -35,10 +38,13 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 import jax  # noqa: E402
 
 from jaxvo import geometry, segmentation  # noqa: E402
+from jaxvo.config import Config  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
 from jaxvo.datasets import TumSequence  # noqa: E402
 from jaxvo.mapping import load_mask, read_moving_masks  # noqa: E402
-from jaxvo.pyramid import block_mean  # noqa: E402
+from jaxvo.pyramid import block_mean, build_pyramid  # noqa: E402
+from jaxvo.ransac import inliers  # noqa: E402
+from jaxvo.residuals import reference_points, residuals  # noqa: E402
 
 import paper_sequences  # noqa: E402
 
@@ -87,15 +93,31 @@ def _free_space(ref_depth, view_depth, T_view_ref, camera, params):
     return segmentation.vote(ref_depth, view_depth, T_view_ref, camera, params)
 
 
-def free_space_shares(seq: TumSequence, true_masks: list, params: segmentation.SegmentParams,
+@jax.jit
+def _unexplained(ref_int, ref_depth, view_int, view_depth, T_view_ref, camera, config):
+    """(H, W) bool each: pixels of the reference whose residuals into the view are defined, and
+    those of them the inlier test (``config``'s thresholds) rejects, at the pose ``T_view_ref``."""
+    ref = build_pyramid(ref_int, ref_depth, 1, config.max_depth)[0]
+    view = build_pyramid(view_int, view_depth, 1, config.max_depth)[0]
+    res = residuals(T_view_ref, reference_points(ref, camera), view, camera)
+    shape = ref_depth.shape
+    return (res.valid_depth.reshape(shape),
+            (res.valid_depth & ~inliers(res, config.thresh_lum, config.thresh_depth)).reshape(shape))
+
+
+def free_space_shares(seq: TumSequence, frames: list, true_masks: list, params: segmentation.SegmentParams,
                       baselines: Sequence[int] = BASELINES) -> dict:
-    """{baseline: (behind, seen, references)}: over the reference frames k >= baseline, the mean share
-    of frame k's truly moving pixels (map level: a map pixel at least half of whose pixels move, with
-    valid map-level depth) that the view ``baseline`` frames earlier, at its ground-truth pose,
-    marks behind and seen (:func:`jaxvo.segmentation.vote`)."""
+    """{baseline: (behind, seen, references, outlier, static outlier)}: over the reference frames k >= baseline, the
+    mean share of frame k's truly moving pixels (map level: a map pixel at least half of whose
+    pixels move, with valid map-level depth) that the view ``baseline`` frames earlier, at its
+    ground-truth pose, marks behind and seen (:func:`jaxvo.segmentation.vote`); and of its truly
+    moving pixels at full resolution whose residuals into that view are defined, the share the
+    estimator's inlier test (``Config()``'s thresholds) rejects at that pose (outlier), and the same
+    share of its static pixels (static outlier: the floor of that test, from occlusions and noise)."""
     covered, T_world_cam = seq.groundtruth_at_frames()
     cam = seq.camera.at_level(segmentation.MAP_LEVEL)
-    depths = [segmentation.map_depth(seq.frame(i).depth) for i in range(len(seq))]
+    config = Config()
+    depths = [segmentation.map_depth(f.depth) for f in frames]
     moving = []
     for m in true_masks:
         x = m.astype(np.float32)
@@ -104,7 +126,7 @@ def free_space_shares(seq: TumSequence, true_masks: list, params: segmentation.S
         moving.append(np.asarray(x) >= 0.5)
     out = {}
     for b in baselines:
-        behind, seen = [], []
+        behind, seen, outlier = [], [], []
         for k in range(b, len(seq)):
             if not (covered[k] and covered[k - b]):
                 continue
@@ -116,7 +138,16 @@ def free_space_shares(seq: TumSequence, true_masks: list, params: segmentation.S
             bh, sn = (np.asarray(x) for x in _free_space(depths[k], depths[k - b], T, cam, params))
             behind.append((bh & mov).sum() / n)
             seen.append((sn & mov).sum() / n)
-        out[b] = (float(np.mean(behind)) if behind else None, float(np.mean(seen)) if seen else None, len(behind))
+            valid, out_ = (np.asarray(x) for x in _unexplained(frames[k].intensity, frames[k].depth,
+                                                               frames[k - b].intensity, frames[k - b].depth, T,
+                                                               seq.camera, config))
+            m, st = true_masks[k] & valid, ~true_masks[k] & valid
+            if m.any() and st.any():
+                outlier.append(((out_ & m).sum() / m.sum(), (out_ & st).sum() / st.sum()))
+
+        def mean(v):
+            return float(np.mean(v)) if v else None
+        out[b] = (mean(behind), mean(seen), len(behind), mean([o[0] for o in outlier]), mean([o[1] for o in outlier]))
     return out
 
 
@@ -147,12 +178,13 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         mt, mp = read_moving_masks(d)
         H, W = seq.camera.height, seq.camera.width
         true = [load_mask(mp[int(np.argmin(np.abs(mt - t)))], (H, W)) for t in seq.timestamps]
-        common.log(f"{name} (seed {seed}): free space with true poses, {len(seq)} frames")
+        frames = common.load_frames(seq)
+        common.log(f"{name} (seed {seed}): free space and residuals with true poses, {len(seq)} frames")
         row = {"sequence": name, "seed": seed, "frames": len(seq), "moving": float(np.mean([m.mean() for m in true])),
-               "free_space": free_space_shares(seq, true, params)}
+               "free_space": free_space_shares(seq, frames, true, params)}
         if a.odometry:
             common.log(f"{name} (seed {seed}): the default odometry")
-            r = paper_sequences.run_default(seq, common.load_frames(seq), true, jax.random.key(seed))
+            r = paper_sequences.run_default(seq, frames, true, jax.random.key(seed))
             steps = r["mask_steps"]
             early = steps[:, 0] <= a.early
             row["early_counts"] = steps[early, 2:].sum(0).tolist()
@@ -187,6 +219,24 @@ def write(a, argv, rows: List[dict], total_s: float) -> None:
         lines.append(f"| {n} | {100 * np.mean([r['moving'] for r in rs]):.1f} | "
                      + " | ".join(mean(0, b) for b in BASELINES) + " | " + " | ".join(mean(1, b) for b in BASELINES)
                      + " |")
+    lines += ["", "## Appearance with the true poses", "",
+              "Of each reference frame's truly moving pixels (full resolution) whose residuals into the view "
+              "`baseline` frames earlier are defined, the share that the estimator's inlier test "
+              f"(`Config()`: |luminance| < {Config().thresh_lum:g} and |depth| < {Config().thresh_depth:g} m) "
+              "rejects at the ground-truth pose: what the estimate's outliers, and so the map's appearance vote, "
+              "can flag on a moving surface that free space cannot; and the same share of the static pixels "
+              "(what the test rejects on static scene at the true pose: occlusions, depth edges, sensor noise).", "",
+              "| sequence | " + " | ".join(f"moving @{b}" for b in BASELINES) + " | "
+              + " | ".join(f"static @{b}" for b in BASELINES) + " |",
+              "| --- | " + " | ".join(["---"] * (2 * len(BASELINES))) + " |"]
+    for n in names:
+        rs = [r for r in rows if r["sequence"] == n]
+        cells = []
+        for i in (3, 4):
+            for b in BASELINES:
+                v = [r["free_space"][b][i] for r in rs if r["free_space"][b][i] is not None]
+                cells.append(common.fmt(float(np.mean(v)) if v else None, ".2f"))
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
     if any("early_counts" in r for r in rows):
         lines += ["", "## The default odometry's moving mask", "",
                   f"`jaxvo.track` with its defaults; the moving mask of each estimate (its outliers not hidden in the "

@@ -163,10 +163,10 @@ def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
                                  "--early", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)])
     (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
     fs = {int(b): v for b, v in row["free_space"].items()}
-    assert fs[8] == [None, None, 0] and fs[16][2] == 0 and fs[1][2] == 5 and fs[4][2] == 2
+    assert fs[8] == [None, None, 0, None, None] and fs[16][2] == 0 and fs[1][2] == 5 and fs[4][2] == 2
     for b in (1, 2, 4):
-        behind, seen, _ = fs[b]
-        assert 0 <= behind and 0 <= seen and behind + seen <= 1
+        behind, seen, _, outlier, static = fs[b]
+        assert 0 <= behind and 0 <= seen and behind + seen <= 1 and 0 <= static < outlier <= 1
     assert fs[4][0] > fs[1][0] > 0 and fs[4][1] < fs[1][1]
     early, late = np.array(row["early_counts"]), np.array(row["late_counts"])
     assert early.shape == late.shape == (4,) and early.sum() > 0 and late.sum() > 0
