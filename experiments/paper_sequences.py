@@ -179,7 +179,6 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
     Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask."""
     cam = seq.camera
-    counts = np.zeros(4, np.int64)
     per_step = []
     cover = np.array([m.mean() for m in true_masks])
     shown, secs, ratio, last = [None], [], [], [time.perf_counter()]
@@ -188,7 +187,6 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
         est = step.estimate
         pred, val = moving_mask(est, cam.width, cam.height, step.static_mask, valid_too=True)
         s = metrics.mask_scores(pred, true_masks[step.reference], val)
-        counts[:] += (s.tp, s.fp, s.fn, s.tn)
         per_step.append((step.frame, step.reference, s.tp, s.fp, s.fn, s.tn))
         if shown[0] is None or cover[step.reference] > cover[shown[0][2]]:  # the most covered reference
             shown[0] = (~pred, val, step.reference)
@@ -199,12 +197,13 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
 
     t0 = time.perf_counter()
     tr = track(frames, cam, Config.from_json(config or {}), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
-    tp, fp, fn, tn = (int(c) for c in counts)
+    steps = np.asarray(per_step, np.int64).reshape(-1, 6)
+    tp, fp, fn, tn = (int(c) for c in steps[:, 2:].sum(0))
     return {"relative": tr.relative, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
             "mask": {"precision": tp / (tp + fp) if tp + fp else None, "recall": tp / (tp + fn) if tp + fn else None,
                      "iou": tp / (tp + fp + fn) if tp + fp + fn else None, "tp": tp, "fp": fp, "fn": fn, "tn": tn},
-            "shown": shown[0], "mask_steps": np.asarray(per_step, np.int64).reshape(-1, 6)}
+            "shown": shown[0], "mask_steps": steps}
 
 
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
