@@ -84,6 +84,61 @@ def test_estimate_batch_matches_estimate_motion(frames):
         assert np.asarray(est.hypotheses).tolist() == np.asarray(one.hypotheses).tolist()
 
 
+_TWO_DEVICES = """
+import sys
+import jax
+import numpy as np
+from jaxvo.batch import batch_size, estimate_batch, track_batch
+from jaxvo.camera import DEFAULT
+from jaxvo.frame import Frame
+from jaxvo.odometry import Config, TrackConfig, track
+
+import jaxvo.batch
+
+# the batched program's outputs, to check where the batch ran
+shardings, batched_call = [], jaxvo.batch._BATCHED
+
+
+def recorded(*args):
+    out = batched_call(*args)
+    shardings.append(out.T_cur_ref.sharding)
+    return out
+
+
+jaxvo.batch._BATCHED = recorded
+data = np.load(sys.argv[1])
+frames = [Frame(i, d) for i, d in zip(data["intensity"], data["depth"])]
+cam = DEFAULT.at_level(2)
+assert len(jax.devices()) == 2 and batch_size(3) == 4, jax.devices()
+cfg, policy = Config(method="classic"), TrackConfig(max_gap=3, lag=1)
+seqs = [frames, frames[::-1], frames[1:]]
+keys = [jax.random.key(k) for k in range(3)]
+batched = track_batch(seqs, [cam] * 3, cfg, keys, policy)
+for s, k, b in zip(seqs, keys, batched):
+    a = track(s, cam, cfg, k, policy=policy)
+    np.testing.assert_allclose(b.poses, a.poses, atol=1e-4)
+assert shardings and all(len(x.device_set) == 2 and not x.is_fully_replicated for x in shardings), shardings
+print("same poses on", len(jax.devices()), "devices")
+"""
+
+
+def test_batch_spreads_over_several_devices(frames, tmp_path):
+    """With two devices (here two host CPU devices, the path a node with several GPUs takes) three
+    sequences run as one batch of four split over both, and each gets the poses it gets alone."""
+    import os
+    import subprocess
+    import sys
+
+    npz = tmp_path / "frames.npz"
+    np.savez(npz, intensity=np.stack([f.intensity for f in frames]), depth=np.stack([f.depth for f in frames]))
+    env = {**os.environ, "JAX_PLATFORMS": "cpu",
+           "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()}
+    r = subprocess.run([sys.executable, "-c", _TWO_DEVICES, str(npz)], env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "same poses on 2 devices" in r.stdout
+
+
 def test_batch_size_and_bad_inputs(frames):
     n = len(jax.devices())
     assert batch_size(1) == n and batch_size(n + 1) == 2 * n
