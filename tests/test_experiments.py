@@ -157,17 +157,25 @@ def test_paper_sequences_augmented_real_sequence(tmp_path):
 def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
     """mask_limits: the share of the moving pixels that free space (true poses) sees through grows
     with the baseline while the share it sees in place shrinks (a person walking past a fixed
-    camera), and the default odometry's mask counts come split into the first pairs and the rest."""
+    camera); both appearance tests flag more of the moving pixels than of the static ones, at the
+    true and at the estimated poses; and the default odometry's mask counts come split into the
+    first pairs and the rest."""
     out = tmp_path / "ml.md"
     _script("mask_limits").main(["--sequences", "seq1", "--augment", "", "--frames", "6", "--seeds", "0",
                                  "--early", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)])
     (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
     fs = {int(b): v for b, v in row["free_space"].items()}
-    assert fs[8] == [None, None, 0, None, None] and fs[16][2] == 0 and fs[1][2] == 5 and fs[4][2] == 2
+    assert fs[8] == [None, None, 0] and fs[16][2] == 0 and fs[1][2] == 5 and fs[4][2] == 2
     for b in (1, 2, 4):
-        behind, seen, _, outlier, static = fs[b]
-        assert 0 <= behind and 0 <= seen and behind + seen <= 1 and 0 <= static < outlier <= 1
+        behind, seen, _ = fs[b]
+        assert 0 <= behind and 0 <= seen and behind + seen <= 1
     assert fs[4][0] > fs[1][0] > 0 and fs[4][1] < fs[1][1]
+    for poses in ("appearance_true", "appearance_estimated"):
+        ap = {int(b): v for b, v in row[poses].items()}
+        assert ap[8] == [None] * 4
+        for b in (1, 2, 4):
+            moving_rejected, static_rejected, moving_changed, static_changed = ap[b]
+            assert 0 <= static_rejected < moving_rejected <= 1 and 0 <= static_changed < moving_changed <= 1
     early, late = np.array(row["early_counts"]), np.array(row["late_counts"])
     assert early.shape == late.shape == (4,) and early.sum() > 0 and late.sum() > 0
     text = out.read_text()
