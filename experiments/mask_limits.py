@@ -42,10 +42,9 @@ import jax.numpy as jnp  # noqa: E402
 
 from jaxvo import geometry, segmentation, trajectory  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
-from jaxvo.camera import DEFAULT  # noqa: E402
 from jaxvo.datasets import TumSequence  # noqa: E402
 from jaxvo.mapping import load_mask, read_moving_masks  # noqa: E402
-from jaxvo.pyramid import block_mean, build_pyramid  # noqa: E402
+from jaxvo.pyramid import build_pyramid  # noqa: E402
 from jaxvo.ransac import inliers  # noqa: E402
 from jaxvo.residuals import reference_points, residuals, sample_bilinear  # noqa: E402
 
@@ -127,12 +126,8 @@ def free_space_shares(seq: TumSequence, frames: list, true_masks: list, params: 
     covered, T_world_cam = seq.groundtruth_at_frames()
     cam = seq.camera.at_level(segmentation.MAP_LEVEL)
     depths = [segmentation.map_depth(f.depth) for f in frames]
-    moving = []
-    for m in true_masks:
-        x = m.astype(np.float32)
-        for _ in range(segmentation.MAP_LEVEL):
-            x = block_mean(x)
-        moving.append(np.asarray(x) >= 0.5)
+    # a map pixel at least half of whose pixels move (the block means the map's appearance vote uses)
+    moving = [np.asarray(segmentation.photometric_outliers(m, np.ones_like(m), depths[0].shape)) for m in true_masks]
     out = {}
     for b in baselines:
         behind, seen = [], []
@@ -170,8 +165,7 @@ def appearance_shares(frames: list, true_masks: list, T_world_cam: np.ndarray, c
                 config))
             m, st = true_masks[k] & valid, ~true_masks[k] & valid
             if m.any() and st.any():
-                shares.append([(x & m).sum() / m.sum() if mine else (x & st).sum() / st.sum()
-                               for x in (rejected, changed) for mine in (True, False)])
+                shares.append([(x & sel).sum() / sel.sum() for x in (rejected, changed) for sel in (m, st)])
         out[b] = tuple(_mean([x[i] for x in shares]) for i in range(4))
     return out
 
@@ -186,14 +180,9 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     argv_list = list(sys.argv[1:] if argv is None else argv)
     t_start = time.perf_counter()
     params, config = segmentation.SegmentParams(), Config()
-    jobs = []
-    for seed in a.seed_list:
-        jobs += [(name, seed, lambda name=name, seed=seed: paper_sequences.synthetic_sequence(
-            name, a.frames, "640x480", seed, True, a.cache), DEFAULT) for name in a.sequences]
-        jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
-            p, persons=2, coverage=0.3, seed=seed, max_frames=a.frames, cache_dir=a.cache), None) for p in a.augment]
     rows = []
-    for name, seed, make, camera in jobs:
+    for name, seed, make, camera in paper_sequences.sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames,
+                                                                  cache=a.cache):
         try:
             d = make()
         except common.datasets.DatasetError as e:
@@ -259,7 +248,7 @@ def write(a, argv, rows: List[dict], total_s: float) -> None:
               "share far above the static one is evidence free space lacks; the static share is what such "
               "votes would add to the static scene (occlusions, depth edges, noise, pose error).", ""]
     for test, i in (("rejected", 0), ("changed", 2)):
-        lines += [f"| sequence | poses | " + " | ".join(f"{test}, moving @{b}" for b in BASELINES) + " | "
+        lines += ["| sequence | poses | " + " | ".join(f"{test}, moving @{b}" for b in BASELINES) + " | "
                   + " | ".join(f"static @{b}" for b in BASELINES) + " |",
                   "| --- | --- | " + " | ".join(["---"] * (2 * len(BASELINES))) + " |"]
         for n in names:

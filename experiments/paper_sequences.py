@@ -172,6 +172,21 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
             "est_angle": float(np.degrees(geometry.rotation_angle(est_rel[:3, :3])))}
 
 
+def sequence_jobs(sequences: Sequence[str], augment: Sequence[Path], seeds: Sequence[int], frames: int,
+                  size: str = "640x480", sensor: bool = True, cache=None) -> list:
+    """(name, seed, make, camera) per seed and sequence: the synthetic ``sequences`` and the dynamic
+    augmentations (2 persons, 30 % coverage) of the real ``augment`` folders; ``make()`` generates
+    the sequence (cached) and returns its folder; camera: the intrinsics to read it with (None:
+    the real sequence's preset)."""
+    jobs = []
+    for seed in seeds:
+        jobs += [(name, seed, lambda name=name, seed=seed: synthetic_sequence(name, frames, size, seed, sensor, cache),
+                  DEFAULT.at_level(SIZES[size])) for name in sequences]
+        jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
+            p, persons=2, coverage=0.3, seed=seed, max_frames=frames, cache_dir=cache), None) for p in augment]
+    return jobs
+
+
 def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
                 config: Optional[dict] = None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
@@ -299,13 +314,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     rows: List[dict] = []
     figs: Dict[str, Dict[str, str]] = {}
     notes: List[str] = []
-    jobs = []
-    for seed in a.seed_list:
-        jobs += [(name, seed, lambda name=name, seed=seed: synthetic_sequence(name, a.frames, a.size, seed, a.sensor,
-                                                                               a.cache),
-                  DEFAULT.at_level(SIZES[a.size])) for name in a.sequences]
-        jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
-            p, persons=2, coverage=0.3, seed=seed, max_frames=a.frames, cache_dir=a.cache), None) for p in a.augment]
+    jobs = sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames, a.size, a.sensor, a.cache)
     for name, seed, make, camera in jobs:
         key = jax.random.key(seed)
         first = seed == a.seed_list[0]
