@@ -1,8 +1,8 @@
-"""How much of the moving area the segmentation's evidence can reach: free space with true poses.
+"""How much of the moving area the segmentation's evidence can reach: free space and appearance.
 
 The moving-mask target (precision and recall >= 0.8) is met on the synthetic seq1-3 and
 handheld-fast and missed on the dynamic augmentation of a real sequence. This script measures
-why, on sequences with exact moving masks and exact poses, in two parts:
+why, on sequences with exact moving masks and exact poses, in three parts:
 
 * **Free space, ideal.** For each reference frame and each baseline (1, 2, 4, 8, 16 frames
   back, the views the map's votes use), the share of the reference's truly moving pixels (map
@@ -43,7 +43,6 @@ import jax.numpy as jnp  # noqa: E402
 from jaxvo import geometry, segmentation, trajectory  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.datasets import TumSequence  # noqa: E402
-from jaxvo.mapping import load_mask, read_moving_masks  # noqa: E402
 from jaxvo.pyramid import build_pyramid  # noqa: E402
 from jaxvo.ransac import inliers  # noqa: E402
 from jaxvo.residuals import reference_points, residuals, sample_bilinear  # noqa: E402
@@ -189,9 +188,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
             common.log(f"{name}: skipped: {e}")
             continue
         seq = TumSequence(d, camera=camera)
-        mt, mp = read_moving_masks(d)
-        H, W = seq.camera.height, seq.camera.width
-        true = [load_mask(mp[int(np.argmin(np.abs(mt - t)))], (H, W)) for t in seq.timestamps]
+        true = paper_sequences.true_masks(d, seq)
         frames = common.load_frames(seq)
         common.log(f"{name} (seed {seed}): free space and residuals with true poses, {len(seq)} frames")
         row = {"sequence": name, "seed": seed, "frames": len(seq), "moving": float(np.mean([m.mean() for m in true])),

@@ -187,6 +187,14 @@ def sequence_jobs(sequences: Sequence[str], augment: Sequence[Path], seeds: Sequ
     return jobs
 
 
+def true_masks(folder, seq: TumSequence) -> list:
+    """The exact moving-pixel mask of each frame of ``seq`` ((H, W) bool), from ``folder``'s masks
+    (the one nearest in time)."""
+    mt, mp = read_moving_masks(folder)
+    H, W = seq.camera.height, seq.camera.width
+    return [load_mask(mp[int(np.argmin(np.abs(mt - t)))], (H, W)) for t in seq.timestamps]
+
+
 def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
                 config: Optional[dict] = None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
@@ -327,9 +335,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
             continue
         seq = TumSequence(d, camera=camera)   # an augmentation: the real sequence's preset
         frames = common.load_frames(seq)
-        mt, mp = read_moving_masks(d)
-        H, W = seq.camera.height, seq.camera.width
-        true = [load_mask(mp[int(np.argmin(np.abs(mt - t)))], (H, W)) for t in seq.timestamps]
+        true = true_masks(d, seq)
         cover = float(np.mean([m.mean() for m in true]))
         runs = {}
         for method in a.methods:
