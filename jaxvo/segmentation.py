@@ -158,9 +158,16 @@ def add_votes(L, ref_depth, view_depths, T_views_ref, valid, camera: Camera, par
     delta = jnp.zeros_like(L)
     for k in range(view_depths.shape[0]):
         behind, seen = vote(ref_depth, view_depths[k], T_views_ref[k], camera, params)
-        delta = delta + (jnp.where(valid[k] & behind, params.dynamic_vote, 0.0)
-                         - jnp.where(valid[k] & seen, params.static_vote, 0.0))
+        delta = delta + _vote_delta(valid[k] & behind, valid[k] & seen, params)
     return jnp.clip(L + delta, -params.clip, params.clip)
+
+
+def _vote_delta(behind, seen, params: SegmentParams, unexplained=False):
+    """One view's change of the log-odds: +``dynamic_vote`` where it saw behind the point; where it
+    saw the point at its depth, -``static_vote``, or +``photo_vote`` where the estimate of that
+    view did not explain it (``unexplained``)."""
+    return (jnp.where(behind, params.dynamic_vote, 0.0)
+            + jnp.where(seen & unexplained, params.photo_vote, jnp.where(seen, -params.static_vote, 0.0)))
 
 
 def photometric_outliers(outlier, valid, shape):
@@ -188,9 +195,7 @@ def add_current_vote(L, ref_depth, cur_depth, T_cur_ref, photo, camera: Camera, 
     within itself (a person walking sideways, a torso turning) keeps its depth along most
     rays, so free space flags only the strip it vacates; its texture does not stay put."""
     behind, seen = vote(ref_depth, cur_depth, T_cur_ref, camera, params)
-    delta = (jnp.where(behind, params.dynamic_vote, 0.0)
-             + jnp.where(seen & photo, params.photo_vote, jnp.where(seen, -params.static_vote, 0.0)))
-    return jnp.clip(L + delta, -params.clip, params.clip)
+    return jnp.clip(L + _vote_delta(behind, seen, params, photo), -params.clip, params.clip)
 
 
 def propagate(L_old, old_depth, new_depth, T_old_new, camera: Camera, params: SegmentParams):
