@@ -267,7 +267,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                                 thresh_depth=cfg.thresh_depth, early_exit_ratio=cfg.early_exit_ratio,
                                 n=cfg.n_points, radius=cfg.patch_radius, max_hypotheses=cfg.max_hypotheses,
                                 batch_size=cfg.batch_size, hypothesis_iterations=cfg.hypothesis_iterations,
-                                depth_weight=hdw, scoring=cfg.scoring).T
+                                depth_weight=hdw, scoring=cfg.scoring, depth_power=cfg.score_depth_power).T
 
         def sample(rl, kk, lc):  # lc unused: every stage takes the camera
             return sample_patches(kk, rl, cfg.n_points, cfg.batch_size, cfg.patch_radius)
@@ -276,7 +276,8 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
             return jax.vmap(lambda a, b: fit_hypothesis(T, rl, cl, lc, a, b, cfg.hypothesis_iterations, hdw))(pu, pv)
 
         def score(Ts, sp, cl, lc):
-            return jax.vmap(lambda X: score_pose(X, sp, cl, lc, cfg.thresh_lum, cfg.thresh_depth, cfg.scoring))(Ts)
+            return jax.vmap(lambda X: score_pose(X, sp, cl, lc, cfg.thresh_lum, cfg.thresh_depth, cfg.scoring,
+                                                 cfg.score_depth_power))(Ts)
 
         def refine(T, pts, cl, lc):
             for _ in range(cfg.refine_rounds):

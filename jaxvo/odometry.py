@@ -224,7 +224,7 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
-                              scoring=config.scoring, offset=offset,
+                              scoring=config.scoring, depth_power=config.score_depth_power, offset=offset,
                               table=table, T_other=T_carried)
             hyps = rs.hypotheses
             T = rs.T

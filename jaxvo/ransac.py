@@ -124,15 +124,19 @@ def sample_patches(key, level: Level, n: int, batch: int, radius: int, table=Non
 
 
 def score_pose(T, score_ref: RefPoints, cur_level: Level, camera: Camera, thresh_lum, thresh_depth,
-               scoring: str = "count"):
-    """(quality, weighted inlier count) of the pose T_cur_ref on the scoring points; see :func:`ransac_level`."""
+               scoring: str = "count", depth_power=0.0):
+    """(quality, weighted inlier count) of the pose T_cur_ref on the scoring points; see :func:`ransac_level`.
+
+    The count weighs each inlier by its static-trust weight; the quality also by z^depth_power
+    (z: the reference depth, metres; 0 = the count's weights)."""
     res = residuals(T, score_ref, cur_level, camera)
     inl = inliers(res, thresh_lum, thresh_depth)
     count = jnp.sum(jnp.where(inl, score_ref.weight, 0.0))
+    w = score_ref.weight * score_ref.points[:, 2] ** depth_power
     if scoring == "count":
-        return count, count
+        return jnp.sum(jnp.where(inl, w, 0.0)), count
     e2 = 0.5 * ((res.r_int / thresh_lum) ** 2 + (res.r_depth / thresh_depth) ** 2)
-    return jnp.sum(jnp.where(inl, score_ref.weight * (1.0 - e2), 0.0)), count
+    return jnp.sum(jnp.where(inl, w * (1.0 - e2), 0.0)), count
 
 
 def fit_hypothesis(T_init, ref_level: Level, cur_level: Level, camera: Camera, pu, pv, iterations: int,
@@ -157,7 +161,7 @@ class RansacResult(NamedTuple):
 def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, score_ref: RefPoints, key, *,
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
                  max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
-                 depth_weight=None, scoring: str = "count", table=None, offset=0.0,
+                 depth_weight=None, scoring: str = "count", depth_power=0.0, table=None, offset=0.0,
                  T_other=None) -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
@@ -168,7 +172,9 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     scoring: "count" ranks hypotheses by their inlier count (the paper);
     "msac" by the truncated-quadratic (MSAC, Torr & Zisserman 2000) score
     sum over inliers of 1 - ((r_I/t_I)^2 + (r_Z/t_Z)^2) / 2, which prefers the
-    hypothesis that aligns its inliers more tightly. The inlier ratio's
+    hypothesis that aligns its inliers more tightly. depth_power: each scoring pixel counts in
+    the quality with weight z^depth_power (2: the surface it images, see
+    ``Config.score_depth_power``; 0: the paper's pixel count). The inlier ratio's
     denominator is the number of scoring points with valid reference depth. table: the
     :func:`sampling_table` to draw sample centres from (default the level's). offset: added to
     the luminance of the sampled reference pixels (see :func:`fit_hypothesis`). T_other: an
@@ -180,7 +186,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
 
     def score(T):
-        return score_pose(T, score_ref, cur_level, camera, thresh_lum, thresh_depth, scoring)
+        return score_pose(T, score_ref, cur_level, camera, thresh_lum, thresh_depth, scoring, depth_power)
 
     def hypothesis(pu, pv):
         return fit_hypothesis(T_init, ref_level, cur_level, camera, pu, pv, hypothesis_iterations, depth_weight,

@@ -127,9 +127,11 @@ def test_ransac_on_coarse_levels_only(dynamic_pair):
     assert np.all(np.asarray(every.hypotheses) > 0)
     # the default scores the pose carried up from level 2 beside the plain fit of level 1, which
     # a mover can drag away: with level 1's refinement on one pixel per 2x2 tile (the tiles
-    # RANSAC had before) the plain fit alone ("refined") ends 14.8 mm off, both candidates 2.2
-    # mm; with the default tiles all three candidate modes end under 1.6 mm on this pair
-    fine = Config(blocks=(4, 2, 1, 1))
+    # RANSAC had before) and hypotheses ranked by pixel count the plain fit alone ("refined")
+    # ends 14.8 mm off, both candidates 2.2 mm; with the default tiles all three candidate modes
+    # end under 1.6 mm on this pair, and with the default's surface-weighted ranking
+    # (score_depth_power 2) the plain fit alone ends 1.0 mm off
+    fine = Config(blocks=(4, 2, 1, 1), score_depth_power=0.0)
     both = _errors(estimate_motion(a.frame(), b.frame(), CAM, fine, jax.random.key(0)).T_cur_ref)[0]
     dragged = estimate_motion(a.frame(), b.frame(), CAM, fine.replace(prior_candidate="refined"), jax.random.key(0))
     assert both < 5.0 and _errors(dragged.T_cur_ref)[0] > 2 * both, (_errors(dragged.T_cur_ref), both)

@@ -11,7 +11,8 @@ import pytest
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
 from jaxvo import pyramid
-from jaxvo.ransac import _nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table
+from jaxvo.ransac import (_nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table,
+                          score_pose)
 from jaxvo.residuals import Residuals, reference_points
 
 CAM = DEFAULT.at_level(3)          # 80 x 60
@@ -235,6 +236,46 @@ def test_second_candidate_is_kept_when_it_scores_better(level_pair):
     # and without it, the start is all there is
     alone = run(bad, None)
     np.testing.assert_array_equal(np.asarray(alone.T), np.asarray(bad))
+
+
+def test_depth_power_ranks_hypotheses_by_the_surface_their_inliers_cover(level_pair):
+    """A near object (0.7 m, 60 % of the pixels) that moved with the camera, in front of the far
+    textured plane (about 2 m) that shows the true motion: counted by pixels, "the camera stood
+    still" (the identity) explains more of the picture; weighted by z^2, the surface each pixel
+    images, the true motion explains more of the scene. depth_power 0 is the plain count."""
+    move = G.exp(np.array([0.0, 0.05, 0.0, 0.12, 0.0, 0.0]))   # larger than T_TRUE: "still" fails the plane
+    ref_i, ref_z = _render(np.eye(4))
+    cur_i, cur_z = _render(move)
+    near = np.broadcast_to(np.arange(W)[None, :] >= int(0.4 * W), (H, W))
+    v, u = np.mgrid[0:H, 0:W]
+    near_i = (128 + 90 * np.sign(np.sin(2 * np.pi * u / 5.0) * np.sin(2 * np.pi * v / 4.0))).astype(np.float32)
+    for img, z in ((ref_i, ref_z), (cur_i, cur_z)):   # the same near object in both frames
+        img[near], z[near] = near_i[near], 0.7
+    ref = build_pyramid(jnp.asarray(ref_i), jnp.asarray(ref_z), 1)[0]
+    cur = build_pyramid(jnp.asarray(cur_i), jnp.asarray(cur_z), 1)[0]
+    pts = reference_points(ref, CAM, stride=1)
+    truth, still = jnp.asarray(move, jnp.float32), jnp.eye(4)
+
+    def scores(T, power):
+        return [float(x) for x in score_pose(T, pts, cur, CAM, 30.0, 0.05, "count", power)]
+
+    (q_truth, n_truth), (q_still, n_still) = scores(truth, 0.0), scores(still, 0.0)
+    assert q_truth == n_truth and q_still == n_still      # power 0: the weighted count itself
+    assert n_still > 1.1 * n_truth                         # more pixels follow the near object
+    (a_truth, c_truth), (a_still, c_still) = scores(truth, 2.0), scores(still, 2.0)
+    assert (c_truth, c_still) == (n_truth, n_still)        # the count (inlier ratio) is unchanged
+    assert a_truth > 3.0 * a_still                         # more surface follows the true motion
+
+    @functools.partial(jax.jit, static_argnames="scoring")
+    def best(power, scoring):
+        return ransac_level(still, ref, cur, CAM, pts, jax.random.key(0), p=0.99, w=0.3, thresh_lum=30.0,
+                            thresh_depth=0.05, early_exit_ratio=0.9, n=6, radius=1, max_hypotheses=0,
+                            batch_size=4, hypothesis_iterations=8, scoring=scoring, depth_power=power,
+                            T_other=truth).T
+
+    for scoring in ("count", "msac"):
+        np.testing.assert_array_equal(np.asarray(best(0.0, scoring)), np.asarray(still))
+        np.testing.assert_array_equal(np.asarray(best(2.0, scoring)), np.asarray(truth))
 
 
 def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
