@@ -785,7 +785,10 @@ class Odometry:
         # the guess is the previous frame's pose, held where its estimate failed, while the camera
         # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)
         extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
-        T, ratio, ratio_static, valid = self._judge(est, T_ref_prev, weights, extra)
+        judged = self._judge(est, T_ref_prev, weights, extra)
+        if not judged[3] and policy.retry:
+            est, judged = self._retry(pair, est, judged, extra)
+        T, ratio, ratio_static, valid = judged
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
@@ -808,6 +811,24 @@ class Odometry:
         result = TrackStep(j, ref, est, pose, valid, static_mask)
         self._maybe_switch(j, T, ratio_static)
         return result
+
+    def _retry(self, pair: "PairInputs", est: MotionEstimate, judged, extra):
+        """(estimate, :meth:`_judge` of it) for a frame whose estimate ``est`` failed: the pair
+        estimated once more from the guess that the camera kept the motion between the two
+        previous frames (``TrackConfig.retry``), if both were estimated and that one passes;
+        ``est`` and ``judged`` as they were otherwise."""
+        j = len(self.poses)
+        if j < 3 or not (self.valid[-1] and self.valid[-2]):
+            return est, judged
+        guess = pair.T_ref_prev @ geometry.inverse(self.poses[j - 2]) @ self.poses[j - 1]   # T_ref_guess
+        dynamic = self._dynamic     # _judge replaces it: kept for the first estimate if this one fails
+        again = estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
+                                init=geometry.inverse(guess), weights=pair.weights)
+        judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
+        if judged_again[3]:
+            return again, judged_again
+        self._dynamic = dynamic
+        return est, judged
 
     def _held(self, j: int) -> np.ndarray:
         """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity

@@ -157,6 +157,45 @@ def test_a_fast_camera_is_caught_again_after_failed_frames(monkeypatch):
     assert TrackConfig().catch_up and not TrackConfig.frame_to_frame().catch_up
 
 
+def test_a_failed_estimate_is_retried_from_the_constant_velocity_guess(monkeypatch):
+    """A camera that turns ever faster, up to 4 deg per frame, and an estimator that converges only
+    from a guess within 2.5 deg of the truth. From the first guess (the camera stood still since
+    the previous frame) the estimates fail once it turns faster than that; made once more from
+    the guess that it kept turning as between the two frames before (``TrackConfig.retry``),
+    they pass, and the track follows the camera to the end."""
+    n = 60
+    yaw = np.cumsum(np.radians(np.minimum(0.25 * np.arange(n), 4.0)))
+    truth = geometry.exp(np.stack([0 * yaw, yaw, 0 * yaw, 0.01 * np.arange(n), 0 * yaw, 0 * yaw], 1))
+    tried = []
+
+    def fake(ref, cur, camera, config, key, init=None, weights=None):
+        r, c = int(ref.intensity[0, 0]), int(cur.intensity[0, 0])
+        T = geometry.inverse(truth[c]) @ truth[r]
+        ok = geometry.rotation_angle((np.asarray(init, np.float64) @ geometry.inverse(T))[:3, :3]) < np.radians(2.5)
+        tried.append((r, c, ok))
+        z = np.zeros((CAM.height, CAM.width), bool)
+        return MotionEstimate(T.astype(np.float32), np.zeros(6), z, z, 0.9, 0, 0, ok, np.eye(6), 1.0)
+
+    monkeypatch.setattr(O, "estimate_motion", fake)
+
+    def run(policy):
+        tried.clear()
+        odo = Odometry(CAM, policy=policy)
+        for f in _frames(n):
+            odo.add(f)
+        return odo
+
+    odo = run(TrackConfig.keyframes(6, retry=True))
+    assert all(odo.valid)
+    retried = [(r, c) for (r, c, ok), (r2, c2, ok2) in zip(tried, tried[1:]) if (r, c) == (r2, c2) and not ok and ok2]
+    assert len(retried) > 5
+    E = geometry.inverse(truth[-1]) @ odo.poses[-1]
+    assert np.linalg.norm(E[:3, 3]) < 1e-4 and geometry.rotation_angle(E[:3, :3]) < 1e-4
+    # without it (the keyframes preset's setting) the track loses the camera once it turns fast
+    assert not all(run(TrackConfig.keyframes(6)).valid)
+    assert TrackConfig().retry and not TrackConfig.frame_to_frame().retry and not TrackConfig.keyframes().retry
+
+
 @pytest.mark.parametrize("restart", [6, 10, 24])
 def test_reference_restarts_after_restart_failed_frames(noisy_estimator, monkeypatch, restart):
     """Every estimate fails from frame 100 on. The reference moves once more, to frame 99, the
