@@ -46,7 +46,8 @@ class Config:
       16), Bonn crowd seeds 0-11: RPE 1 s 0.049 against 0.065 m/s, ATE 0.042 against 0.050 m
       (experiments/results/bonn_default.md against policy_restart24.md; the restart's share:
       see TrackConfig.restart). As a classifier of wrong estimates (experiments/failure_flag.py) the rule stays at precision
-      1.000, recall 0.973 (0.982 before: one more Bonn pair 30 frames apart passes).
+      1.000, recall 0.973 (0.982 before: one more Bonn pair 30 frames apart passes); with
+      ``score_depth_power`` 2, precision 0.991, recall 0.982 (see the README).
     n_points: *static*, pixels per RANSAC sample (the paper's n = 6).
     patch_radius: *static*, neighbourhood radius around each sampled pixel (1 -> 3x3).
     max_hypotheses: *static*, hard cap on k per level.
