@@ -259,11 +259,12 @@ def test_depth_power_ranks_hypotheses_by_the_surface_their_inliers_cover(level_p
     def scores(T, power):
         return [float(x) for x in score_pose(T, pts, cur, CAM, 30.0, 0.05, "count", power)]
 
-    (q_truth, n_truth), (q_still, n_still) = scores(truth, 0.0), scores(still, 0.0)
-    assert q_truth == n_truth and q_still == n_still      # power 0: the weighted count itself
+    (q_truth, n_truth, s_truth), (q_still, n_still, s_still) = scores(truth, 0.0), scores(still, 0.0)
+    assert q_truth == n_truth == s_truth and q_still == n_still == s_still   # power 0: the count itself
     assert n_still > 1.1 * n_truth                         # more pixels follow the near object
-    (a_truth, c_truth), (a_still, c_still) = scores(truth, 2.0), scores(still, 2.0)
+    (a_truth, c_truth, s_truth), (a_still, c_still, s_still) = scores(truth, 2.0), scores(still, 2.0)
     assert (c_truth, c_still) == (n_truth, n_still)        # the count (inlier ratio) is unchanged
+    assert (a_truth, a_still) == (s_truth, s_still)        # "count" scoring: the quality is the surface
     assert a_truth > 3.0 * a_still                         # more surface follows the true motion
 
     @functools.partial(jax.jit, static_argnames="scoring")
