@@ -100,7 +100,7 @@ class Config:
       about the same recall (0.404 against 0.408), below RANSAC's ATE on 11 of 12 seeds against
       10 (power 1: 0.037 m, power 3: 0.033 m, augmented_power1.md / augmented_power3.md).
       Bonn crowd within the seed-to-seed spread (bonn_default.md against bonn_power0.md: RPE
-      1 s 0.039 against 0.038 m/s, ATE 0.033 against 0.031 m, seeds 0-11); fr2_desk and the
+      1 s 0.039 against 0.038 m/s, ATE 0.032 against 0.031 m, seeds 0-11); fr2_desk and the
       synthetic seq1-3 as before.
     prior_candidate: *static*, the pose RANSAC scores first and starts every hypothesis
       from: "raw" (the previous level's result as it is) or "refined" (that pose after a
