@@ -93,7 +93,8 @@ class Config:
       1 m away covers four times the pixels of the same area of wall 2 m behind, and where
       people walk with the camera and cover 40-50 % of the view the pixel count makes "the
       camera followed them" the largest consensus before the segmentation knows anything.
-      The inlier ratio (early exit, ``valid``) still counts pixels. fr2_desk + 2 synthetic
+      The inlier ratio (``valid``) still counts pixels; RANSAC stops early on either share
+      (jaxvo.ransac.ransac_level). fr2_desk + 2 synthetic
       persons, default tracking, seeds 0-11 (experiments/results/augmented_default.md against
       augmented_power0.md, the same command with ``--config '{"score_depth_power": 0}' --policy
       '{"retry": false}'``): ATE 0.035 m against 0.048 m, mask precision 0.705 against 0.670 at

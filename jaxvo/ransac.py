@@ -11,9 +11,12 @@ One call of :func:`ransac_level` runs, for one pyramid level:
    only, starting from the level's initial pose; a batch is solved with
    ``jax.vmap``;
 3. each hypothesis is scored by its inliers on the level's scoring pixels:
-   |luminance residual| < ``thresh_lum`` and |depth residual| < ``thresh_depth``;
+   |luminance residual| < ``thresh_lum`` and |depth residual| < ``thresh_depth``,
+   each weighted by z^depth_power (jaxvo's default 2: the scene surface it images;
+   0: the paper's count);
 4. the best hypothesis so far is kept; the loop stops when a hypothesis's
-   inlier ratio exceeds ``early_exit_ratio`` or after k hypotheses.
+   inlier ratio (or its share of the weighted total) exceeds ``early_exit_ratio``
+   or after k hypotheses.
 
 The initial pose itself (the previous level's result) is scored first as
 hypothesis zero: on a static scene it usually passes the early exit at once,
@@ -33,8 +36,8 @@ from jaxvo.pyramid import Level, level_size, level_slice
 from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
 from jaxvo.solvers import solve_pose_small
 
-__all__ = ["num_hypotheses", "inliers", "SamplingTable", "sampling_table", "sample_patches", "score_pose", "score_weights",
-           "fit_hypothesis", "RansacResult", "ransac_level"]
+__all__ = ["num_hypotheses", "inliers", "SamplingTable", "sampling_table", "sample_patches", "score_pose",
+           "score_weights", "fit_hypothesis", "RansacResult", "ransac_level"]
 
 
 def num_hypotheses(p, w, n):
