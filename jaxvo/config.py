@@ -139,8 +139,9 @@ class Config:
       0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179). With
       ``score_depth_power`` 2 (2026-11-25) it measured better: Bonn crowd 0.030 m/s, ATE 0.025 m,
       0.71 deg/s against 0.039 / 0.032 / 1.14 (experiments/results/bonn_brightness_offset.md
-      against bonn_default.md), the augmentation and fr2_desk unchanged; its cost is not measured
-      yet, so it stays off for now.
+      against bonn_default.md), the augmentation and fr2_desk unchanged; it costs 1.25x / 1.10x
+      the time per static / Bonn pair and 0.6 s of compilation (variants_brightness.md), which
+      would break the per-pair speed target, so it stays off for now.
     scan_levels: *static*, RANSAC only: run the RANSAC levels that refine on the same number of
       points (levels 3-1 with the default tiles, 4800 points each) as one ``lax.scan`` over one
       level body (images padded to the group's largest level, scoring grids to the longest)
