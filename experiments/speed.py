@@ -237,7 +237,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     """
     from jaxvo.odometry import _block, _levels
     from jaxvo.pyramid import build_pyramid
-    from jaxvo.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose
+    from jaxvo.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose, score_weights
     from jaxvo.residuals import reference_points, residuals, select_points
     from jaxvo.solvers import irls, solve_pose, solve_pose_small
 
@@ -276,8 +276,9 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
             return jax.vmap(lambda a, b: fit_hypothesis(T, rl, cl, lc, a, b, cfg.hypothesis_iterations, hdw))(pu, pv)
 
         def score(Ts, sp, cl, lc):
+            sw = score_weights(sp, cfg.score_depth_power)
             return jax.vmap(lambda X: score_pose(X, sp, cl, lc, cfg.thresh_lum, cfg.thresh_depth, cfg.scoring,
-                                                 cfg.score_depth_power))(Ts)
+                                                 sw))(Ts)
 
         def refine(T, pts, cl, lc):
             for _ in range(cfg.refine_rounds):

@@ -127,15 +127,16 @@ def sample_patches(key, level: Level, n: int, batch: int, radius: int, table=Non
 
 
 def score_pose(T, score_ref: RefPoints, cur_level: Level, camera: Camera, thresh_lum, thresh_depth,
-               scoring: str = "count", depth_power=0.0):
+               scoring: str = "count", surface_weights=None):
     """(quality, count, surface) of the pose T_cur_ref on the scoring points; see :func:`ransac_level`.
 
     count: its inliers weighted by their static-trust weight; quality and surface weigh them by
-    :func:`score_weights` (that weight times z^depth_power); surface: their plain sum."""
+    ``surface_weights`` ((N,), :func:`score_weights`; default the static-trust weights, i.e.
+    depth_power 0); surface: their plain sum. The caller computes the weights once per level."""
     res = residuals(T, score_ref, cur_level, camera)
     inl = inliers(res, thresh_lum, thresh_depth)
     count = jnp.sum(jnp.where(inl, score_ref.weight, 0.0))
-    w = score_weights(score_ref, depth_power)
+    w = score_ref.weight if surface_weights is None else surface_weights
     surface = jnp.sum(jnp.where(inl, w, 0.0))
     if scoring == "count":
         return surface, count, surface
@@ -199,10 +200,12 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
     n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
     # the same times z^depth_power: the share of the scene surface the ranking measures
-    s_ref = jnp.maximum(jnp.sum(score_weights(score_ref, depth_power)), 1e-6)
+    # (once per level: XLA's loop-invariant code motion is off for these programs, jaxvo.solvers)
+    surface_w = score_weights(score_ref, depth_power)
+    s_ref = jnp.maximum(jnp.sum(surface_w), 1e-6)
 
     def score(T):
-        return score_pose(T, score_ref, cur_level, camera, thresh_lum, thresh_depth, scoring, depth_power)
+        return score_pose(T, score_ref, cur_level, camera, thresh_lum, thresh_depth, scoring, surface_w)
 
     def hypothesis(pu, pv):
         return fit_hypothesis(T_init, ref_level, cur_level, camera, pu, pv, hypothesis_iterations, depth_weight,

@@ -12,7 +12,7 @@ from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
 from jaxvo import pyramid
 from jaxvo.ransac import (_nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table,
-                          score_pose)
+                          score_pose, score_weights)
 from jaxvo.residuals import Residuals, reference_points
 
 CAM = DEFAULT.at_level(3)          # 80 x 60
@@ -257,7 +257,7 @@ def test_depth_power_ranks_hypotheses_by_the_surface_their_inliers_cover(level_p
     truth, still = jnp.asarray(move, jnp.float32), jnp.eye(4)
 
     def scores(T, power):
-        return [float(x) for x in score_pose(T, pts, cur, CAM, 30.0, 0.05, "count", power)]
+        return [float(x) for x in score_pose(T, pts, cur, CAM, 30.0, 0.05, "count", score_weights(pts, power))]
 
     (q_truth, n_truth, s_truth), (q_still, n_still, s_still) = scores(truth, 0.0), scores(still, 0.0)
     assert q_truth == n_truth == s_truth and q_still == n_still == s_still   # power 0: the count itself
