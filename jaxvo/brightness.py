@@ -19,16 +19,19 @@ luminance over the same pixels was noisier (Bonn crowd, seeds 0-2, RPE 1 s 0.084
 """
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera
 from jaxvo.pyramid import Level
 from jaxvo.residuals import RefPoints, residuals
 
-__all__ = ["fit_offset", "apply"]
+__all__ = ["fit_offset", "apply", "masked_median"]
 
 # fewer agreeing pixels than this and the fit is not trusted
 _MIN_PIXELS = 64
+# bisection steps of masked_median: enough to close any float32 interval of the luminance range
+_STEPS = 40
 
 
 def fit_offset(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera, thresh_lum, thresh_depth):
@@ -38,9 +41,34 @@ def fit_offset(T_cur_ref, ref: RefPoints, cur: Level, camera: Camera, thresh_lum
     |offset| <= thresh_lum / 3."""
     res = residuals(T_cur_ref, ref, cur, camera)
     ok = res.valid_depth & (jnp.abs(res.r_depth) < thresh_depth) & (ref.weight >= 0.5)
-    offset = jnp.nanmedian(jnp.where(ok, res.r_int, jnp.nan))
+    offset = masked_median(res.r_int, ok)
     use = (jnp.sum(ok) >= _MIN_PIXELS) & (jnp.abs(offset) > thresh_lum / 3)
     return jnp.where(use, offset, 0.0).astype(jnp.float32)
+
+
+def masked_median(x, mask):
+    """The median of the finite values ``x[mask]`` (x: (N,) float32, mask: (N,) bool): the mean of
+    the two middle values for an even count, as ``jnp.nanmedian``; NaN for an empty mask.
+
+    Each middle value is found by bisection on the value (count the values at or below the
+    midpoint, keep the half that holds it), then snapped to the largest value at or below the
+    upper end: O(N) per step and no sort. XLA's CPU sort made ``jnp.nanmedian`` of the ~8500
+    points of a level cost 1.1 ms; these 40 steps cost 0.1 ms."""
+    n = jnp.sum(mask)
+    k = jnp.stack([(n - 1) // 2, n // 2])          # ranks (from 0) of the two middle values
+    lo = jnp.min(jnp.where(mask, x, jnp.inf)) - 1.0
+    hi = jnp.max(jnp.where(mask, x, -jnp.inf))
+    bounds = (jnp.stack([lo, lo]), jnp.stack([hi, hi]))   # count(<= lo) <= k < count(<= hi)
+
+    def step(_, b):
+        lo, hi = b
+        mid = 0.5 * (lo + hi)
+        above = jnp.sum(mask & (x <= mid[:, None]), axis=1) > k
+        return jnp.where(above, lo, mid), jnp.where(above, mid, hi)
+
+    _, hi = jax.lax.fori_loop(0, _STEPS, step, bounds)
+    middle = jnp.max(jnp.where(mask & (x <= hi[:, None]), x, -jnp.inf), axis=1)
+    return jnp.where(n > 0, 0.5 * (middle[0] + middle[1]), jnp.nan)
 
 
 def apply(level: Level, offset) -> Level:
