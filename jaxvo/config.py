@@ -130,18 +130,17 @@ class Config:
     score_selection: *static*, which pixels score a hypothesis when there are more than
       max_score_pixels: "grid" (a regular subgrid) or "gradient" (the strongest-gradient
       pixel of each tile, so textureless areas that agree with any pose do not dilute it).
-    brightness: *static*, "none" (the paper: luminance compared as it is) or "offset": each
-      level first fits the exposure change I_cur ~ I_ref + offset on the pixels whose depth
-      agrees at its starting pose, when it exceeds thresh_lum / 3 (jaxvo.brightness). Off by
-      default: no measured gain on Bonn crowd, whose exposure changes happen while people
-      cover most of the view (seeds 0-11, experiments/results/brightness_*.md: RPE 1 s 0.062
-      against 0.065 m/s and ATE 0.043 against 0.047 m, within the seed-to-seed spread of
-      0.034-0.089 m/s, but rotation 2.05 against 1.61 deg/s; fr2_desk unchanged at 0.0179). With
-      ``score_depth_power`` 2 (2026-11-25) it measured better: Bonn crowd 0.030 m/s, ATE 0.025 m,
-      0.71 deg/s against 0.039 / 0.032 / 1.14 (experiments/results/bonn_brightness_offset.md
-      against bonn_default.md), the augmentation and fr2_desk unchanged; it costs 1.25x / 1.10x
-      the time per static / Bonn pair and 0.6 s of compilation (variants_brightness.md), which
-      would break the per-pair speed target, so it stays off for now.
+    brightness: *static*, "offset" (default) or "none" (the paper: luminance compared as it is).
+      "offset": each level first fits the exposure change I_cur ~ I_ref + offset on the pixels
+      whose depth agrees at its starting pose, and shifts the reference by it when it exceeds
+      thresh_lum / 3 (jaxvo.brightness). Kinect-class cameras set their exposure
+      automatically, and people in light clothes filling the view change it by ~36 grey levels
+      (Bonn crowd frames 109 -> 120, experiments/exposure.py). Bonn crowd, default tracking,
+      seeds 0-11: RPE 1 s 0.030 m/s, ATE 0.025 m, 0.71 deg/s against 0.039 / 0.032 / 1.14 with
+      "none" (experiments/results/bonn_default.md against bonn_brightness_none.md), the fr2_desk
+      augmentation and fr2_desk as with "none"; it costs 1.00x / 0.95x the time per static /
+      Bonn pair (experiments/results/variants_brightness.md). Before hypotheses were ranked by
+      surface (score_depth_power) it measured no gain there (brightness_*.md of 2026-11-23).
     scan_levels: *static*, RANSAC only: run the RANSAC levels that refine on the same number of
       points (levels 3-1 with the default tiles, 4800 points each) as one ``lax.scan`` over one
       level body (images padded to the group's largest level, scoring grids to the longest)
@@ -190,7 +189,7 @@ class Config:
     min_depth_agreement: Any = 0.2
     min_photometric_agreement: Any = 0.65
     sample_gate: Any = 0.0
-    brightness: str = "none"
+    brightness: str = "offset"
     scan_levels: bool = True
 
     @classmethod
@@ -198,9 +197,10 @@ class Config:
         """The seed paper's algorithm as published: hypotheses fitted on the photometric
         residual only, ranked by inlier count, scored on every pixel of every level, and
         every pixel used in the refinement, plain least squares on the consensus set.
-        RANSAC runs on every level. The defaults differ from it in these eight places (measured to be
-        more accurate or faster; see the README)."""
+        RANSAC runs on every level, and luminance is compared as it is. The defaults differ from it
+        in these nine places (measured to be more accurate or faster; see the README)."""
         return cls(method=method, hypothesis_terms="photometric", scoring="count", score_depth_power=0.0,
+                   brightness="none",
                    consensus_weights="binary", prior_candidate="raw", ransac_finest=0,
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
