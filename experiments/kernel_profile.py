@@ -19,6 +19,8 @@ the compiled program's metadata), and to the jaxvo source line that produced it:
   and Huber: their fits);
 * final masks and statistics: the dense residuals at the finest level and the failure flag's
   statistics;
+* brightness offset: the exposure change fitted at each level and applied to the reference
+  (``Config.brightness``);
 * other: the rest (the loops' bookkeeping, the carried pose).
 
 Kernel times are CPU time in kernels: XLA runs independent kernels of one program on several
@@ -65,6 +67,7 @@ STAGES: Tuple[Tuple[str, str], ...] = (
     ("RANSAC scoring", "ransac_scoring"),
     ("refinement", "refinement"),
     ("final masks and statistics", "final"),
+    ("brightness offset", "brightness"),
 )
 # HLO instructions that only contain other kernels: their events would count those twice
 _CONTAINERS = re.compile(r"\b(while|conditional|call)\(")

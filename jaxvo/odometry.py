@@ -193,9 +193,10 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
     level, ref_size, cur_size, cam, pts, score_pts, grid_pts = xs
     ref_l, cur_l = stacks[0]._replace(size=ref_size), stacks[1]._replace(size=cur_size)
     if config.brightness == "offset":   # exposure changes: fitted at the level's starting pose
-        offset = brightness.fit_offset(T, grid_pts, cur_l, cam, config.thresh_lum, config.thresh_depth)
-        # added to the reference points' luminance (brightness.apply on the level, point by point)
-        pts, score_pts = _shifted(pts, offset), _shifted(score_pts, offset)
+        with jax.named_scope("brightness"):
+            offset = brightness.fit_offset(T, grid_pts, cur_l, cam, config.thresh_lum, config.thresh_depth)
+            # added to the reference points' luminance (brightness.apply on the level, point by point)
+            pts, score_pts = _shifted(pts, offset), _shifted(score_pts, offset)
     ones = pts.weight
     hyps = jnp.int32(0)
     if config.method == "classic":
@@ -283,7 +284,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     level = config.finest_level
     cam, ref_l, cur_l = camera.at_level(level), ref_pyr[level], cur_pyr[level]
     if config.brightness == "offset":
-        ref_l = brightness.apply(ref_l, offset)
+        with jax.named_scope("brightness"):
+            ref_l = brightness.apply(ref_l, offset)
 
     # per-pixel masks and statistics at the finest level processed, all pixels
     # ref_l, cur_l: the finest level processed, ref_l with the brightness fitted there

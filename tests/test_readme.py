@@ -59,3 +59,15 @@ def test_library_runs_and_evaluates_without_the_cli():
             "bad = [m for m in ('jaxvo.cli', 'click') if m in sys.modules]; assert not bad, bad")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_readme_paper_json_is_config_paper():
+    """The fields the README tells a user to save as paper.json turn the defaults into exactly
+    ``Config.paper()``: every setting where the default departs from the paper is listed there."""
+    import json
+
+    from jaxvo import Config
+    section = README.read_text().split("## Where jaxvo differs from the paper and why", 1)[1]
+    text = re.search(r"echo '(\{.*?\})' > paper\.json", section, re.S).group(1)
+    fields = json.loads(text)
+    assert Config.from_dict(fields) == Config.paper()
