@@ -53,7 +53,7 @@ def masked_median(x, mask):
     Each middle value is found by bisection on the value (count the values at or below the
     midpoint, keep the half that holds it), then snapped to the largest value at or below the
     upper end: O(N) per step and no sort. XLA's CPU sort made ``jnp.nanmedian`` of the ~8500
-    points of a level cost 1.1 ms; these 40 steps cost 0.1 ms."""
+    points of a level cost 1.1 ms; these 40 steps for both middle values cost 0.2 ms."""
     n = jnp.sum(mask)
     k = jnp.stack([(n - 1) // 2, n // 2])          # ranks (from 0) of the two middle values
     lo = jnp.min(jnp.where(mask, x, jnp.inf)) - 1.0

@@ -136,9 +136,9 @@ class Config:
       thresh_lum / 3 (jaxvo.brightness). Kinect-class cameras set their exposure
       automatically, and people in light clothes filling the view change it by ~36 grey levels
       (Bonn crowd frames 109 -> 120, experiments/exposure.py). Bonn crowd, default tracking,
-      seeds 0-11: RPE 1 s 0.030 m/s, ATE 0.025 m, 0.71 deg/s against 0.039 / 0.032 / 1.14 with
+      seeds 0-11: RPE 1 s 0.028 m/s, ATE 0.024 m, 0.60 deg/s against 0.039 / 0.032 / 1.14 with
       "none" (experiments/results/bonn_default.md against bonn_brightness_none.md), the fr2_desk
-      augmentation and fr2_desk as with "none"; it costs about 1.1x / 1.05x the time per static /
+      augmentation (one seed of 12 differs) and fr2_desk as with "none"; it costs about 1.1x / 1.05x the time per static /
       Bonn pair (experiments/results/variants_brightness.md). Before hypotheses were ranked by
       surface (score_depth_power) it measured no gain there (brightness_*.md of 2026-11-23).
     scan_levels: *static*, RANSAC only: run the RANSAC levels that refine on the same number of
