@@ -734,7 +734,6 @@ class Odometry:
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
         self._L = None                  # dynamic log-odds of the reference, map level
-        self._dynamic = 1.0             # fraction of the reference's valid pixels the map does not trust
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
         self._compiling = None          # the thread compiling the segmentation's programs ahead
 
@@ -790,7 +789,7 @@ class Odometry:
         judged = self._judge(est, T_ref_prev, weights, extra)
         if not judged[3] and policy.retry:
             est, judged = self._retry(pair, est, judged, extra)
-        T, ratio, ratio_static, valid = judged
+        T, ratio, ratio_static, valid, dynamic = judged
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
@@ -811,7 +810,7 @@ class Odometry:
                 self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T), unexplained,
                                       self._map_cam, self.params)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
-        self._maybe_switch(j, T, ratio_static)
+        self._maybe_switch(j, T, ratio_static, dynamic)
         return result
 
     def _retry(self, pair: "PairInputs", est: MotionEstimate, judged, extra):
@@ -823,14 +822,10 @@ class Odometry:
         if j < 3 or not (self.valid[-1] and self.valid[-2]):
             return est, judged
         guess = pair.T_ref_prev @ geometry.inverse(self.poses[j - 2]) @ self.poses[j - 1]   # T_ref_guess
-        dynamic = self._dynamic     # _judge replaces it: kept for the first estimate if this one fails
         again = estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
                                 init=geometry.inverse(guess), weights=pair.weights)
         judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
-        if judged_again[3]:
-            return again, judged_again
-        self._dynamic = dynamic
-        return est, judged
+        return (again, judged_again) if judged_again[3] else (est, judged)
 
     def _held(self, j: int) -> np.ndarray:
         """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity
@@ -857,8 +852,7 @@ class Odometry:
 
     def _estimate(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess). Returns (estimate, T_cur_ref float64, inlier ratio, inlier ratio
-        over trusted pixels, valid), valid also requiring a plausible step from the guess."""
+        (float64 T_ref_guess). Returns (estimate,) + :meth:`_judge` of it."""
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
         return (est,) + self._judge(est, T_ref_prev, weights)
@@ -884,23 +878,25 @@ class Odometry:
                 failed * np.degrees(geometry.rotation_angle(d[:3, :3])) / n)
 
     def _judge(self, est: MotionEstimate, T_ref_prev: np.ndarray, weights, extra=(0.0, 0.0)):
-        """(T_cur_ref float64, inlier ratio, inlier ratio over trusted pixels, valid) of an estimate
-        from the initial guess ``T_ref_prev``; valid also requires a plausible step from the guess:
-        within the policy's per-frame limits plus ``extra`` (metres, degrees) for a stale guess."""
+        """(T_cur_ref float64, inlier ratio, inlier ratio over trusted pixels, valid, dynamic) of an
+        estimate from the initial guess ``T_ref_prev``; valid also requires a plausible step from the
+        guess: within the policy's per-frame limits plus ``extra`` (metres, degrees) for a stale
+        guess. dynamic: the fraction of the reference's valid pixels the map does not trust (1.0
+        without the segmentation)."""
         policy = self.policy
         if policy.segment:
-            T, ratio, ok, (ratio_static, self._dynamic) = jax.device_get(   # one transfer
+            T, ratio, ok, (ratio_static, dynamic) = jax.device_get(   # one transfer
                 (est.T_cur_ref, est.inlier_ratio, est.valid, _trust_ratios(est.inlier_mask, est.valid_mask, weights)))
         else:
             T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
-            ratio_static = ratio
+            ratio_static, dynamic = ratio, 1.0
         T = _rigid(T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         if valid:
             step = T @ T_ref_prev                          # T_cur_guess
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step + extra[0]
                      and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg + extra[1]))
-        return T, float(ratio), float(ratio_static), valid
+        return T, float(ratio), float(ratio_static), valid, float(dynamic)
 
     def _smoothed(self, new: int) -> np.ndarray:
         """Pose of ``new`` from a smooth fit to all estimates against its reference.
@@ -933,17 +929,18 @@ class Odometry:
         T_world_old = self._chain_pose(old)
         weights = _trust(self._L, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
-        _, T, _, _, valid = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose, weights)
+        _, T, _, _, valid, _ = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
+                                              weights)
         if not valid:
             return pose
         other = T_world_old @ geometry.inverse(T)
         return geometry.interpolate(pose, other, 0.5)
 
-    def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float) -> None:
+    def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float, dynamic: float) -> None:
         policy, ref = self.policy, self._ref
         far = (np.linalg.norm(T_cur_ref[:3, 3]) > policy.switch_baseline
                or geometry.rotation_angle(T_cur_ref[:3, :3]) > np.radians(policy.switch_deg))
-        calm = policy.segment and self.valid[-1] and float(self._dynamic) < policy.calm_fraction
+        calm = policy.segment and self.valid[-1] and dynamic < policy.calm_fraction
         self._calm = calm
         if calm:      # nothing moves: frame to frame, the shortest baseline
             self._set_reference(j, j)
