@@ -270,7 +270,7 @@ def test_select_points_picks_strongest_gradient_with_valid_depth():
     assert select_points(lev, cam, 1).u.shape == (h * w,)
 
 
-@pytest.mark.parametrize("b", [2, 4])
+@pytest.mark.parametrize("b", [2, 3, 4])
 def test_select_points_matches_a_per_tile_loop(b):
     """Against an independent NumPy loop over the tiles: the pixel of largest score
     (gradient^2 + 1e-3) * (weight + 1e-6) among valid depth, the first in the tile's row-major
