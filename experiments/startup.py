@@ -13,7 +13,8 @@ process three times:
 Reported per run: ``first pair s`` (jaxvo's summary line ``compile``: from the start of tracking
 to the first pair's pose, reading, tracing, compiling and running it) and ``process s`` (the
 wall time of the whole process, interpreter start and imports included, for one pair).
-``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy). The
+``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy), ``paper``
+``jaxvo run --paper`` (the published algorithm, ``Config.paper()``: RANSAC on every level). The
 three runs are repeated ``--repeats`` times (default 3; a fresh folder each time, the methods
 alternating) and the table gives each one's median and range: on a small shared machine one
 fresh-process run varies by a second or more.
@@ -53,13 +54,13 @@ from jaxvo import cache  # noqa: E402
 SCRIPT = Path(__file__)
 RUNS = ("first", "second", "no export")
 METHOD_ARGS = {"default": [], "classic": ["--method", "classic"], "huber": ["--method", "huber"],
-               "ransac": ["--method", "ransac"]}
+               "ransac": ["--method", "ransac"], "paper": ["--paper"]}
 
 
 def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sequence", default=None, help="sequence folder (default: the bundled fr2/desk excerpt)")
-    ap.add_argument("--methods", default="default,classic,huber",
+    ap.add_argument("--methods", default="default,classic,huber,paper",
                     help=f"comma list of {', '.join(METHOD_ARGS)} (default: %(default)s)")
     ap.add_argument("--repeats", type=int, default=3,
                     help="passes of the fresh-process runs; the table gives their median and range (default: %(default)s)")
@@ -116,6 +117,15 @@ def startup_rows(seq: Path, methods: List[str], repeats: int = 1) -> List[dict]:
 EMITTERS = (("", {}), (", legacy fusion emitters", {"xla_cpu_use_fusion_emitters": False}))
 
 
+def _config(method: str):
+    """The estimator's Config for a ``--methods`` entry (``paper``: ``Config.paper()``, as ``jaxvo run --paper``)."""
+    from jaxvo.config import Config
+
+    if method == "paper":
+        return Config.paper()
+    return Config() if method == "default" else Config(method=method)
+
+
 def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) -> List[dict]:
     """Trace / lower / XLA compile of the estimator alone, no cache (this process compiled nothing yet),
     with XLA's fusion emitters and with its legacy ones, and each compiled program's median time
@@ -131,7 +141,7 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
     frames = common.load_frames(s)
     rows = []
     for method in methods:
-        config = Config() if method == "default" else Config(method=method)
+        config = _config(method)
         args = common.estimator_shapes(s.camera, config)
         t0 = time.perf_counter()
         traced = _estimate_jit.trace(*args)
@@ -347,7 +357,8 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
               "without `exported/`, i.e. JAX's persistent compilation cache alone (tracing and lowering "
               "still happen). `first pair s`: jaxvo's summary line `compile` (from the start of tracking to "
               "the first pair's pose); `process s`: the whole process, interpreter start and imports included. "
-              "`default`: `jaxvo run` without options (ransac with the keyframe/segmentation policy). "
+              "`default`: `jaxvo run` without options (ransac with the keyframe/segmentation policy); `paper`: "
+              "`jaxvo run --paper` (`Config.paper()`: the published algorithm, RANSAC on every level). "
               "Each run repeated in `--repeats` passes (each in a fresh folder, the methods alternating): the "
               "median, and in brackets the range, of the passes. Other processes may share this machine: "
               "compare rows of one run.", "",
