@@ -124,6 +124,23 @@ def test_sample_patches_deterministic_per_key():
                 np.array_equal(np.asarray(a[1]), np.asarray(c[1])))
 
 
+def test_sample_patches_draws_the_centres_of_a_batch_n_randint():
+    """The centres are the drawable pixels ranked by ``jax.random.randint(key, (batch, n), 0, total)``
+    (the draw every result so far was made with; sample_patches draws them flat and reshapes,
+    which XLA compiles faster), checked through the sampling table's rank-to-pixel lookup."""
+    rng = np.random.default_rng(3)
+    depth = np.where(rng.random((H, W)) < 0.6, 1.5, 0.0).astype(np.float32)
+    lev = _level(depth)
+    key = jax.random.PRNGKey(11)
+    pu, pv = _sample(key, lev, n=6, batch=8, radius=1)
+    table = jax.jit(sampling_table, static_argnames="radius")(lev, radius=1)
+    ranks = jax.random.randint(key, (8, 6), 0, int(table.rows[-1]))
+    flat = np.asarray(jax.jit(_nth_true)(table, ranks))
+    w = table.ok.shape[1]
+    np.testing.assert_array_equal(np.asarray(pu).reshape(8, 6, 9)[..., 4], flat % w)
+    np.testing.assert_array_equal(np.asarray(pv).reshape(8, 6, 9)[..., 4], flat // w)
+
+
 def test_sample_patches_sparse_valid_pixels():
     depth = np.zeros((H, W), np.float32)
     allowed = {(10, 10), (30, 20), (70, 50)}          # (u, v)
