@@ -27,6 +27,7 @@ from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_tr
 from jaxvo.metrics import ate, mask_scores, rpe
 from jaxvo.runner import RunResult, load_config, load_sequence, run_sequence
 from jaxvo.evaluation import evaluate, trajectory_errors
+from jaxvo.hindsight import HindsightParams, sequence_masks as hindsight_masks
 
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
@@ -35,5 +36,6 @@ __all__ = [
     "DatasetError", "TumSequence", "IclNuimSequence", "RedwoodSequence", "open_sequence", "TrajectoryWriter", "read_tum_trajectory", "write_tum_trajectory",
     "rpe", "ate", "mask_scores",
     "RunResult", "run_sequence", "load_config", "load_sequence", "evaluate", "trajectory_errors",
+    "HindsightParams", "hindsight_masks",
 ]
 __version__ = "0.1.0"

@@ -16,6 +16,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -27,6 +28,7 @@ from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
 from jaxvo.datasets import DatasetError
 from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation import evaluate, trajectory_errors
+from jaxvo.hindsight import OFFSETS as HINDSIGHT_OFFSETS, HindsightParams
 from jaxvo.outputs import check_output, check_output_folder, finish, partial_path
 from jaxvo.runner import (RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence,
                           run_sequences)
@@ -276,6 +278,7 @@ def _size_option(ctx, param, value):
   jaxvo synth seq2 OUT                # write a synthetic sequence (TUM layout + masks/)
   jaxvo augment REAL_SEQ OUT          # add synthetic moving persons to a real sequence
   jaxvo map SEQ traj.txt map.ply      # coloured 3-D point cloud (moving points green)
+  jaxvo masks SEQ traj.txt OUT        # moving-pixel masks in hindsight (earlier and later frames)
   jaxvo gt SEQ -o gt.txt              # ground truth as camera poses (for evo)
 
 {CONVENTIONS}
@@ -997,6 +1000,102 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
     lines.append(f"time          {res.seconds:.1f} s")
     click.echo("\n".join(lines))
 
+
+
+# ----------------------------------------------------------------------------- masks
+
+@main.command("masks", help=f"""Moving-pixel masks of a tracked sequence, decided in hindsight.
+
+SEQUENCE_DIR is a sequence folder; TRAJ a TUM trajectory file (T_world_cam per line, e.g.
+written by 'jaxvo run') whose timestamps are matched to the frames within --max-dt seconds.
+Each frame with a pose is compared with the frames --offsets away, before and after it, at
+the trajectory's relative poses (jaxvo.hindsight): a pixel is moving when, in at least
+--ratio of the frames that see it (not hidden behind something nearer), its depth or its
+luminance changed (beyond the inlier thresholds, the pair's exposure offset and the
+image gradient); a 3-D region at least --region-ratio of whose pixels move is flagged
+whole. Unlike the masks of 'jaxvo run --save-masks', these use later frames too, so a
+person is flagged before it has moved off its pixels; they are only as good as the poses.
+
+OUT_DIR gets one 8-bit PNG per frame (255 = moving), named by the frame's timestamp
+(e.g. 1311868164.363181.png), the format 'jaxvo eval --masks-dir' scores. The masks are
+written as they are decided, into OUT_DIR.partial, which becomes OUT_DIR at the end.
+
+{CONVENTIONS}
+""")
+@click.argument("sequence_dir", type=click.Path(path_type=Path))
+@click.argument("traj", type=click.Path(path_type=Path))
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--offsets", default=",".join(str(o) for o in HINDSIGHT_OFFSETS), show_default=True,
+              help="Comma list of the frame offsets each frame is compared with (negative: earlier).")
+@click.option("--ratio", type=click.FloatRange(0, 1, min_open=True), default=HindsightParams().ratio,
+              show_default=True, help="Share of the seeing frames in which a pixel must have changed.")
+@click.option("--region-ratio", type=click.FloatRange(0, 1, min_open=True),
+              default=HindsightParams().region_ratio, show_default=True,
+              help="Share of a 3-D region's pixels that must move for the whole region to be flagged.")
+@click.option("--thresh-lum", type=POSITIVE, default=None,
+              help="Luminance threshold (0-255). [default: Config's, 30]")
+@click.option("--thresh-depth", type=POSITIVE, default=None,
+              help="Depth threshold in metres. [default: Config's, 0.05]")
+@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Use at most N frames of the sequence.")
+@click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
+              help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
+                   "the folder name]")
+@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
+@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
+              help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
+@_handle_errors
+def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_lum, thresh_depth, max_frames,
+              camera_preset, depth_scale, max_dt, no_progress, force):
+    import cv2
+
+    from jaxvo.config import Config
+    from jaxvo.datasets import read_pose_file
+    from jaxvo.hindsight import sequence_masks
+    from jaxvo.mapping import match_trajectory
+    from jaxvo.runner import stamp_name
+
+    try:
+        offset_list = [int(o) for o in offsets.split(",") if o.strip()]
+    except ValueError:
+        raise _Fail(f"--offsets must be a comma list of integers, got {offsets!r}") from None
+    if not any(offset_list):
+        raise _Fail("--offsets must hold at least one nonzero frame offset")
+    if not Path(traj).is_file():
+        raise DatasetError(f"{traj}: trajectory file not found")
+    check_output_folder(out_dir, [sequence_dir, traj], force)
+    seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
+    t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
+    idx, T = match_trajectory(seq.timestamps, t_traj, T_traj, max_dt)
+    if idx.size == 0:
+        raise DatasetError(f"{traj}: no pose within {max_dt} s of a frame of {sequence_dir}")
+    poses = np.full((len(seq), 4, 4), np.nan)
+    poses[idx] = T
+    config = Config().replace(**{k: v for k, v in (("thresh_lum", thresh_lum), ("thresh_depth", thresh_depth))
+                                 if v is not None})
+    params = HindsightParams(ratio=ratio, region_ratio=region_ratio)
+    click.echo(f"jaxvo masks: {seq.name}, {idx.size} of {len(seq)} frames with a pose, offsets "
+               f"{','.join(str(o) for o in offset_list)}, {seq.camera!r}", err=True)
+    tmp = partial_path(out_dir, fresh=True)
+    tmp.mkdir(parents=True)
+    pbar = None if no_progress else progress_bar(total=int(idx.size), unit="frame", desc="masks")
+    moving, t0 = [], time.perf_counter()
+    try:
+        for i, m in sequence_masks(seq.frame, poses, seq.camera, config, params, offset_list):
+            p = tmp / f"{stamp_name(seq.timestamps[i])}.png"
+            if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
+                raise DatasetError(f"{p}: could not write mask image")
+            moving.append(float(m.mean()))
+            if pbar is not None:
+                pbar.update(1)
+    finally:
+        if pbar is not None:
+            pbar.close()
+    finish(tmp, out_dir)
+    click.echo(f"wrote {len(moving)} masks to {out_dir} (moving pixels per frame: {100 * np.mean(moving):.1f} % "
+               f"mean, {100 * np.max(moving):.1f} % max; {time.perf_counter() - t0:.1f} s)")
 
 if __name__ == "__main__":  # pragma: no cover
     main()
