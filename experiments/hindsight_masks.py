@@ -1,0 +1,184 @@
+"""Moving-pixel masks in hindsight (``jaxvo masks``) against the default odometry's own masks.
+
+On sequences with exact moving masks (the synthetic seq1-3 and handheld-fast, and the dynamic
+augmentation of fr2_desk: 2 persons, 30 % coverage), for each seed:
+
+* the default odometry (``jaxvo.track``) runs along the sequence; its moving mask is scored as
+  ``experiments/paper_sequences.py`` scores it (per estimate, on its reference frame, over the
+  pixels it decided: the estimate's valid pixels and the segmentation's dynamic ones);
+* :func:`jaxvo.hindsight.sequence_masks` then decides every frame's mask from the odometry's
+  poses (``estimated``) and from the ground-truth poses (``true``: what the method gives when the
+  poses are right). These are scored per frame over **every pixel with valid depth** (a superset
+  of the pixels the online measure counts, so the comparison does not favour them).
+
+Precision and recall treat the moving class as positive, pooled per seed; the tables give the
+mean and range over the seeds, and the pooled counts of all seeds.
+
+    python experiments/hindsight_masks.py                                   # the results file
+    python experiments/hindsight_masks.py --sequences seq2 --augment '' --seeds 0 --frames 30
+
+Writes ``experiments/results/hindsight_masks.md`` and ``.json``; sequences are cached in
+``experiments/results/cache/`` (shared with ``paper_sequences.py``).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+import common  # noqa: E402  (sets sys.path for jaxvo)
+
+import jax  # noqa: E402
+
+from jaxvo import trajectory  # noqa: E402
+from jaxvo.datasets import DatasetError, TumSequence  # noqa: E402
+from jaxvo.hindsight import OFFSETS, HindsightParams, sequence_masks  # noqa: E402
+
+import paper_sequences  # noqa: E402
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sequences", default="seq1,seq2,seq3,handheld-fast",
+                    help=f"comma list of synthetic sequences ({', '.join(paper_sequences.SEQUENCES)}); '' for none")
+    ap.add_argument("--augment", default=None,
+                    help="comma list of real TUM sequence folders, each as its dynamic augmentation (2 persons, "
+                         "30 %% coverage, the seed); default: freiburg2_desk under the data root; '' for none")
+    ap.add_argument("--frames", type=int, default=90, help="frames per sequence (default 90, as paper_sequences.py)")
+    ap.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9,10,11",
+                    help="comma list of seeds (scenes, augmentations, RANSAC; default 0-11)")
+    ap.add_argument("--synthetic-seeds", default="0,1,2",
+                    help="seeds of the synthetic sequences (default 0-2: they are 90 frames each)")
+    ap.add_argument("--ratio", type=float, default=HindsightParams().ratio, help="HindsightParams.ratio")
+    ap.add_argument("--region-ratio", type=float, default=HindsightParams().region_ratio,
+                    help="HindsightParams.region_ratio")
+    ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks.md",
+                    help="markdown output (json next to it)")
+    a = ap.parse_args(argv)
+    a.sequences = [s.strip() for s in a.sequences.split(",") if s.strip()]
+    bad = [s for s in a.sequences if s not in paper_sequences.SEQUENCES]
+    if bad:
+        ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(paper_sequences.SEQUENCES)}")
+    if a.augment is None:
+        desk = common.find_named("rgbd_dataset_freiburg2_desk")
+        if desk is None:
+            ap.error(f"--augment: {common.missing_data_message()}")
+        a.augment = [desk]
+    else:
+        a.augment = paper_sequences.augment_list(a.augment, ap)
+    try:
+        a.seed_list = common.int_list(a.seeds)
+        a.synthetic_seed_list = common.int_list(a.synthetic_seeds)
+    except ValueError as e:
+        ap.error(f"--seeds: {e}")
+    if a.frames < 3:
+        ap.error("--frames must be >= 3")
+    return a
+
+
+def hindsight_counts(seq: TumSequence, poses, true_masks: list, params: HindsightParams) -> np.ndarray:
+    """(tp, fp, fn, tn) of the hindsight masks from ``poses`` (N, 4, 4) T_world_cam, pooled over the
+    frames, on each frame's pixels with valid depth (up to ``Config().max_depth``)."""
+    counts = np.zeros(4, np.int64)
+    for i, m in sequence_masks(seq.frame, poses, seq.camera, params=params):
+        d = np.asarray(seq.frame(i).depth)
+        valid = (d > 0) & (d <= 4.0)
+        t = true_masks[i]
+        counts += [(m & t & valid).sum(), (m & ~t & valid).sum(), (~m & t & valid).sum(), (~m & ~t & valid).sum()]
+    return counts
+
+
+def scores(c) -> tuple:
+    tp, fp, fn = (int(x) for x in c[:3])
+    return (tp / (tp + fp) if tp + fp else None, tp / (tp + fn) if tp + fn else None)
+
+
+def _cell(values, spec=".3f") -> str:
+    v = [x for x in values if x is not None]
+    if not v:
+        return "n/a"
+    return f"{np.mean(v):{spec}} ({min(v):{spec}} - {max(v):{spec}})" if len(v) > 1 else f"{v[0]:{spec}}"
+
+
+def main(argv: Optional[Sequence[str]] = None) -> dict:
+    a = parse_args(argv)
+    argv_list = list(sys.argv[1:] if argv is None else argv)
+    params = HindsightParams(ratio=a.ratio, region_ratio=a.region_ratio)
+    t_start = time.perf_counter()
+    jobs = paper_sequences.sequence_jobs([], a.augment, a.seed_list, a.frames, cache=a.cache)
+    jobs += paper_sequences.sequence_jobs(a.sequences, [], a.synthetic_seed_list, a.frames, cache=a.cache)
+    rows = []
+    for name, seed, make, camera in jobs:
+        try:
+            d = make()
+        except DatasetError as e:
+            common.log(f"{name}: skipped: {e}")
+            continue
+        seq = TumSequence(d, camera=camera)
+        true = paper_sequences.true_masks(d, seq)
+        frames = common.load_frames(seq)
+        common.log(f"{name} (seed {seed}): the default odometry, {len(seq)} frames")
+        run = paper_sequences.run_default(seq, frames, true, jax.random.key(seed))
+        m = run["mask"]
+        row = {"sequence": name, "seed": seed, "frames": len(seq),
+               "online": (m["tp"], m["fp"], m["fn"], m["tn"]), "ate": common.evaluate(seq, run["relative"])["ate"]}
+        for which, poses in (("estimated", trajectory.chain(run["relative"])),
+                             ("true", seq.groundtruth_at_frames()[1])):
+            t0 = time.perf_counter()
+            row[which] = hindsight_counts(seq, poses, true, params)
+            row[f"{which}_s"] = time.perf_counter() - t0
+        common.log(f"  online {scores(row['online'])}, hindsight {scores(row['estimated'])} "
+                   f"(true poses {scores(row['true'])}), {row['estimated_s']:.1f} s")
+        rows.append(row)
+
+    lines = common.provenance_md("Moving-pixel masks in hindsight", "experiments/hindsight_masks.py", argv_list)
+    lines += [f"Offsets {', '.join(str(o) for o in OFFSETS)} frames; ratio {params.ratio}, region_ratio "
+              f"{params.region_ratio} (`jaxvo.hindsight.HindsightParams`). {a.frames} frames at most per "
+              f"sequence; the augmentation's seeds {a.seeds}, the synthetic sequences' {a.synthetic_seeds}. "
+              f"Total wall time {time.perf_counter() - t_start:.0f} s.", "",
+              "*online*: the default odometry's moving mask as `paper_sequences.py` scores it (per estimate, "
+              "on its reference, over the pixels it decided). *hindsight*: `jaxvo.hindsight.sequence_masks` "
+              "from the odometry's poses (*estimated*) and from the ground truth (*true*), per frame over "
+              "every pixel with valid depth. Precision / recall: mean (min - max) of the per-seed pooled "
+              "scores; *pooled*: all seeds' counts together. *s per frame*: the hindsight pass from the "
+              "estimated poses, its compilation included.", ""]
+    table = []
+    for name in dict.fromkeys(r["sequence"] for r in rows):
+        rs = [r for r in rows if r["sequence"] == name]
+        entry = {"sequence": name, "seeds": len(rs), "ate": _cell([r["ate"] for r in rs], ".4f"),
+                 "s_per_frame": float(np.mean([r["estimated_s"] / r["frames"] for r in rs]))}
+        for which in ("online", "estimated", "true"):
+            per = [scores(r[which]) for r in rs]
+            pooled = scores(np.sum([r[which] for r in rs], axis=0))
+            entry[which] = {"precision": _cell([p for p, _ in per]), "recall": _cell([q for _, q in per]),
+                            "pooled": f"{common.fmt(pooled[0], '.3f')} / {common.fmt(pooled[1], '.3f')}"}
+        table.append(entry)
+    lines += ["| sequence | seeds | default ATE m | online P | online R | online pooled P / R | hindsight P | "
+              "hindsight R | hindsight pooled P / R | true poses: pooled P / R | s per frame |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for e in table:
+        lines.append(f"| {e['sequence']} | {e['seeds']} | {e['ate']} | {e['online']['precision']} | "
+                     f"{e['online']['recall']} | {e['online']['pooled']} | {e['estimated']['precision']} | "
+                     f"{e['estimated']['recall']} | {e['estimated']['pooled']} | {e['true']['pooled']} | "
+                     f"{e['s_per_frame']:.2f} |")
+    lines += ["", "Per seed (precision / recall):", "",
+              "| sequence | seed | default ATE m | online | hindsight | true poses |", "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        cells = [" / ".join(common.fmt(x, ".3f") for x in scores(r[w])) for w in ("online", "estimated", "true")]
+        lines.append(f"| {r['sequence']} | {r['seed']} | {common.fmt(r['ate'], '.4f')} | " + " | ".join(cells) + " |")
+    data = {"command": common.command_line("experiments/hindsight_masks.py", argv_list),
+            "machine": common.machine_info(), "params": params._asdict(), "offsets": list(OFFSETS),
+            "rows": rows, "table": table}
+    out = common.write_outputs(a.out, lines, data)
+    common.log(f"wrote {out}")
+    return data
+
+
+if __name__ == "__main__":
+    main()
