@@ -901,7 +901,8 @@ frames within --max-dt seconds (frames without a pose are skipped). Every N-th m
 (--every), the pixels with valid depth up to --max-depth metres are back-projected and moved
 into the world with the trajectory's pose. Static points keep their RGB colour; moving points
 (outliers of the estimator on the pair (frame, next frame): residuals defined but not an
-inlier; or, with --use-masks, the pixels of the sequence's masks/) are painted green, as the
+inlier; with --hindsight, the masks of 'jaxvo masks', decided against earlier and later
+frames; or, with --use-masks, the pixels of the sequence's masks/) are painted green, as the
 outliers of the paper's Fig. 4/7. A voxel grid (--voxel metres; 0 = off) averages position and
 colour per voxel, static and moving points apart.
 
@@ -926,6 +927,9 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
               help="Also write a PNG preview of the map.")
 @click.option("--use-masks", is_flag=True,
               help="Label moving points from the sequence's masks/ (masks.txt) instead of running the estimator.")
+@click.option("--hindsight", is_flag=True,
+              help="Label moving points with the masks of 'jaxvo masks' (each frame against earlier and later "
+                   "frames at the trajectory's poses) instead of one estimate's outliers.")
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
@@ -939,13 +943,13 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @FORCE
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
-            no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
+            hindsight, no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
     from jaxvo.datasets import read_pose_file
     from jaxvo.mapping import build_map, render_preview, write_ply
     from jaxvo.odometry import Config
 
-    if use_masks and no_labels:
-        raise _Fail("--use-masks and --no-labels exclude each other")
+    if use_masks + hindsight + no_labels > 1:
+        raise _Fail("--use-masks, --hindsight and --no-labels exclude each other")
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
     check_output(out_ply, [sequence_dir, traj], force)
@@ -956,7 +960,7 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
     t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
     if len(t_traj) == 0:
         raise DatasetError(f"{traj}: no poses in the trajectory file")
-    labels = None if no_labels else ("masks" if use_masks else "estimate")
+    labels = None if no_labels else ("masks" if use_masks else "hindsight" if hindsight else "estimate")
     config = Config(method=method)
     click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames, every {every}, labels "
                f"{labels if labels != 'estimate' else method}, {seq.camera!r}", err=True)

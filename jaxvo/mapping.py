@@ -236,8 +236,10 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
       every: use every ``every``-th frame that has a pose.
       voxel: voxel size (m) for downsampling, None / 0 = keep every point.
       labels: "estimate" (outliers of ``estimate_motion`` on (i, i+1) with ``config``,
-        default ``Config()`` = ransac; key ``fold_in(key(seed), i)``), "masks" (the
-        sequence's masks/), or None (everything static).
+        default ``Config()`` = ransac; key ``fold_in(key(seed), i)``), "hindsight" (the masks of
+        :func:`jaxvo.hindsight.sequence_masks` from the trajectory's poses of every matched
+        frame, ``config``'s thresholds), "masks" (the sequence's masks/), or None (everything
+        static).
       stride: pixel subsampling of each frame before the voxel grid.
       progress: ``progress(done, total)`` after each used frame.
 
@@ -249,12 +251,14 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
     t0 = time.perf_counter()
     if every < 1:
         raise ValueError(f"every must be >= 1, got {every}")
-    if labels not in (None, "estimate", "masks"):
-        raise ValueError(f"labels must be 'estimate', 'masks' or None, got {labels!r}")
+    if labels not in (None, "estimate", "hindsight", "masks"):
+        raise ValueError(f"labels must be 'estimate', 'hindsight', 'masks' or None, got {labels!r}")
     idx, poses = match_trajectory(seq.timestamps, traj_stamps, traj_poses, max_dt)
     if idx.size == 0:
         raise DatasetError(f"no trajectory pose within {max_dt} s of any frame of {seq.path} "
                            f"(frames {seq.timestamps[0]:.6f} .. {seq.timestamps[-1]:.6f})")
+    all_poses = np.full((len(seq), 4, 4), np.nan)
+    all_poses[idx] = poses
     sel = np.arange(0, idx.size, every)
     idx, poses = idx[sel], poses[sel]
     cam = seq.camera
@@ -270,6 +274,10 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
         from jaxvo.odometry import Config, estimate_motion
         config = Config() if config is None else config
         key = jax.random.key(int(seed))
+
+    if labels == "hindsight":   # every matched frame is a view; masks of the frames used, in order
+        from jaxvo.hindsight import sequence_masks
+        hindsight = sequence_masks(seq.frame, all_poses, cam, config, frames=[int(i) for i in idx])
 
     cache: Dict[int, tuple] = {}
 
@@ -300,6 +308,8 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
             est = estimate_motion(fr, other, cam, config, jax.random.fold_in(key, i))
             moving_img = moving_mask(est, W, H)
             ratio = float(est.inlier_ratio)
+        elif labels == "hindsight":
+            moving_img = next(hindsight)[1]
         elif labels == "masks":
             mt, mp = masks
             j = int(np.argmin(np.abs(mt - seq.timestamps[i])))

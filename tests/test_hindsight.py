@@ -191,3 +191,22 @@ def test_masks_command_bad_input(seq1, tmp_path, case):
     errors = [ln for ln in r.stderr.splitlines() if ln.startswith("error: ")]
     assert len(errors) == 1 and "Traceback" not in r.stderr
     assert case == "not-empty" or not (tmp_path / "out").exists()
+
+
+def test_map_with_hindsight_labels(seq1, tmp_path):
+    """``jaxvo map --hindsight`` paints the moving points of the frames used from the hindsight masks
+    (every matched frame a view): the person's share of the map's points is near its share of the
+    frames' valid pixels, and the static room stays in its colours."""
+    from jaxvo.mapping import MOVING_COLOUR, read_ply
+    out = tmp_path / "m.ply"
+    r = CliRunner().invoke(main, ["map", str(seq1), str(seq1.parent / "traj.txt"), str(out), "--hindsight",
+                                  "--every", "10", "--voxel", "0", "--no-progress"])
+    assert r.exit_code == 0, r.output + r.stderr
+    P, C = read_ply(out)
+    green = np.all(C == np.asarray(MOVING_COLOUR, np.uint8), axis=1)
+    seq, true = _true_masks(seq1)
+    share = np.mean([true[i][np.asarray(seq.frame(i).depth) > 0].mean() for i in range(0, len(seq), 10)])
+    assert 0.0 < share and abs(green.mean() - share) < 0.3 * share, (green.mean(), share)
+    r = CliRunner().invoke(main, ["map", str(seq1), str(seq1.parent / "traj.txt"), str(tmp_path / "x.ply"),
+                                  "--hindsight", "--use-masks", "--no-progress"])
+    assert r.exit_code == 2 and "exclude each other" in r.stderr
