@@ -57,10 +57,14 @@ def parse_args(argv=None):
     ap.add_argument("--ratio", type=float, default=HindsightParams().ratio, help="HindsightParams.ratio")
     ap.add_argument("--region-ratio", type=float, default=HindsightParams().region_ratio,
                     help="HindsightParams.region_ratio")
+    ap.add_argument("--quick", action="store_true",
+                    help="a smoke run: seq1 only, 8 frames, seed 0, no augmentation")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks.md",
                     help="markdown output (json next to it)")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.sequences, a.augment, a.frames, a.seeds, a.synthetic_seeds = "seq1", "", 8, "0", "0"
     a.sequences = [s.strip() for s in a.sequences.split(",") if s.strip()]
     bad = [s for s in a.sequences if s not in paper_sequences.SEQUENCES]
     if bad:

@@ -40,7 +40,8 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("aug-cache")
 
 
-@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile"])
+@pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile",
+                                  "hindsight_masks"])
 def test_help(name):
     r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
                        timeout=120)
@@ -180,6 +181,21 @@ def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
     assert early.shape == late.shape == (4,) and early.sum() > 0 and late.sum() > 0
     text = out.read_text()
     assert "python experiments/mask_limits.py" in text and "| seq1 |" in text and "| precision 1-2 |" in text
+
+
+def test_hindsight_masks_quick(tmp_path):
+    """hindsight_masks --quick: one seq1 row with the online, estimated- and true-pose counts; the
+    hindsight counts cover every valid-depth pixel of the 8 frames; the table names the command."""
+    out = tmp_path / "hm.md"
+    _script("hindsight_masks").main(["--quick", "--cache", str(tmp_path / "cache"), "--out", str(out)])
+    (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert row["sequence"] == "seq1" and row["frames"] == 8
+    est, true = np.array(row["estimated"]), np.array(row["true"])
+    assert est.sum() == true.sum() > 8 * 640 * 480 // 2
+    for c in (est, true, np.array(row["online"])):
+        assert c.shape == (4,) and c[0] > 0 and (c >= 0).all()
+    text = out.read_text()
+    assert "python experiments/hindsight_masks.py --quick" in text and "| seq1 | 1 |" in text
 
 
 def test_paper_sequences_policy_is_checked(capsys):
