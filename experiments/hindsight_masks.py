@@ -35,7 +35,7 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 import jax  # noqa: E402
 
 from jaxvo import trajectory  # noqa: E402
-from jaxvo.datasets import DatasetError, TumSequence  # noqa: E402
+from jaxvo.datasets import TumSequence  # noqa: E402
 from jaxvo.hindsight import OFFSETS, HindsightParams, sequence_masks  # noqa: E402
 
 import paper_sequences  # noqa: E402
@@ -44,14 +44,7 @@ import paper_sequences  # noqa: E402
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sequences", default="seq1,seq2,seq3,handheld-fast",
-                    help=f"comma list of synthetic sequences ({', '.join(paper_sequences.SEQUENCES)}); '' for none")
-    ap.add_argument("--augment", default=None,
-                    help="comma list of real TUM sequence folders, each as its dynamic augmentation (2 persons, "
-                         "30 %% coverage, the seed); default: freiburg2_desk under the data root; '' for none")
-    ap.add_argument("--frames", type=int, default=90, help="frames per sequence (default 90, as paper_sequences.py)")
-    ap.add_argument("--seeds", default="0,1,2,3,4,5,6,7,8,9,10,11",
-                    help="comma list of seeds (scenes, augmentations, RANSAC; default 0-11)")
+    paper_sequences.add_job_args(ap, "seq1,seq2,seq3,handheld-fast", "0,1,2,3,4,5,6,7,8,9,10,11")
     ap.add_argument("--synthetic-seeds", default="0,1,2",
                     help="seeds of the synthetic sequences (default 0-2: they are 90 frames each)")
     ap.add_argument("--ratio", type=float, default=HindsightParams().ratio, help="HindsightParams.ratio")
@@ -59,30 +52,16 @@ def parse_args(argv=None):
                     help="HindsightParams.region_ratio")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: seq1 only, 8 frames, seed 0, no augmentation")
-    ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks.md",
                     help="markdown output (json next to it)")
     a = ap.parse_args(argv)
     if a.quick:
         a.sequences, a.augment, a.frames, a.seeds, a.synthetic_seeds = "seq1", "", 8, "0", "0"
-    a.sequences = [s.strip() for s in a.sequences.split(",") if s.strip()]
-    bad = [s for s in a.sequences if s not in paper_sequences.SEQUENCES]
-    if bad:
-        ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(paper_sequences.SEQUENCES)}")
-    if a.augment is None:
-        desk = common.find_named("rgbd_dataset_freiburg2_desk")
-        if desk is None:
-            ap.error(f"--augment: {common.missing_data_message()}")
-        a.augment = [desk]
-    else:
-        a.augment = paper_sequences.augment_list(a.augment, ap)
+    paper_sequences.check_job_args(a, ap)
     try:
-        a.seed_list = common.int_list(a.seeds)
         a.synthetic_seed_list = common.int_list(a.synthetic_seeds)
     except ValueError as e:
-        ap.error(f"--seeds: {e}")
-    if a.frames < 3:
-        ap.error("--frames must be >= 3")
+        ap.error(f"--synthetic-seeds: {e}")
     return a
 
 
@@ -118,15 +97,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     jobs = paper_sequences.sequence_jobs([], a.augment, a.seed_list, a.frames, cache=a.cache)
     jobs += paper_sequences.sequence_jobs(a.sequences, [], a.synthetic_seed_list, a.frames, cache=a.cache)
     rows = []
-    for name, seed, make, camera in jobs:
-        try:
-            d = make()
-        except DatasetError as e:
-            common.log(f"{name}: skipped: {e}")
-            continue
-        seq = TumSequence(d, camera=camera)
-        true = paper_sequences.true_masks(d, seq)
-        frames = common.load_frames(seq)
+    for name, seed, seq, true, frames in paper_sequences.opened_jobs(jobs):
         common.log(f"{name} (seed {seed}): the default odometry, {len(seq)} frames")
         run = paper_sequences.run_default(seq, frames, true, jax.random.key(seed))
         m = run["mask"]

@@ -55,37 +55,13 @@ BASELINES = (1, 2, 4, 8, 16)
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sequences", default="seq2,handheld-fast",
-                    help=f"comma list of synthetic sequences ({', '.join(paper_sequences.SEQUENCES)}); '' for none")
-    ap.add_argument("--augment", default=None,
-                    help="comma list of real TUM sequence folders, each as its dynamic augmentation (2 persons, "
-                         "30 %% coverage, the seed), as in paper_sequences.py; default: freiburg2_desk under the "
-                         "data root; '' for none")
-    ap.add_argument("--frames", type=int, default=90, help="frames per sequence (default 90, as paper_sequences.py)")
-    ap.add_argument("--seeds", default="0,1,2", help="comma list of seeds (scenes, augmentations, RANSAC)")
+    paper_sequences.add_job_args(ap, "seq2,handheld-fast", "0,1,2")
     ap.add_argument("--early", type=int, default=16, help="the first pairs reported apart (default 16)")
     ap.add_argument("--no-odometry", dest="odometry", action="store_false",
                     help="only the free-space part (no tracking run)")
-    ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "mask_limits.md", help="markdown output (json next to it)")
     a = ap.parse_args(argv)
-    a.sequences = [s.strip() for s in a.sequences.split(",") if s.strip()]
-    bad = [s for s in a.sequences if s not in paper_sequences.SEQUENCES]
-    if bad:
-        ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(paper_sequences.SEQUENCES)}")
-    if a.augment is None:
-        desk = common.find_named("rgbd_dataset_freiburg2_desk")
-        if desk is None:
-            ap.error(f"--augment: {common.missing_data_message()}")
-        a.augment = [desk]
-    else:
-        a.augment = paper_sequences.augment_list(a.augment, ap)
-    try:
-        a.seed_list = common.int_list(a.seeds)
-    except ValueError as e:
-        ap.error(f"--seeds: {e}")
-    if a.frames < 3:
-        ap.error("--frames must be >= 3")
+    paper_sequences.check_job_args(a, ap)
     return a
 
 
@@ -180,16 +156,8 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     t_start = time.perf_counter()
     params, config = segmentation.SegmentParams(), Config()
     rows = []
-    for name, seed, make, camera in paper_sequences.sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames,
-                                                                  cache=a.cache):
-        try:
-            d = make()
-        except common.datasets.DatasetError as e:
-            common.log(f"{name}: skipped: {e}")
-            continue
-        seq = TumSequence(d, camera=camera)
-        true = paper_sequences.true_masks(d, seq)
-        frames = common.load_frames(seq)
+    jobs = paper_sequences.sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames, cache=a.cache)
+    for name, seed, seq, true, frames in paper_sequences.opened_jobs(jobs):
         common.log(f"{name} (seed {seed}): free space and residuals with true poses, {len(seq)} frames")
         row = {"sequence": name, "seed": seed, "frames": len(seq), "moving": float(np.mean([m.mean() for m in true])),
                "free_space": free_space_shares(seq, frames, true, params),

@@ -133,6 +133,43 @@ def augment_list(text: Optional[str], ap) -> List[Path]:
     return paths
 
 
+def add_job_args(ap, sequences: str, seeds: str) -> None:
+    """The options of the scripts that run on synthetic sequences and on the augmentation of a real
+    one (mask_limits.py, hindsight_masks.py): --sequences, --augment, --frames, --seeds, --cache;
+    :func:`check_job_args` checks them."""
+    ap.add_argument("--sequences", default=sequences,
+                    help=f"comma list of synthetic sequences ({', '.join(SEQUENCES)}); '' for none")
+    ap.add_argument("--augment", default=None,
+                    help="comma list of real TUM sequence folders, each as its dynamic augmentation (2 persons, "
+                         "30 %% coverage, the seed), as in paper_sequences.py; default: freiburg2_desk under the "
+                         "data root; '' for none")
+    ap.add_argument("--frames", type=int, default=90, help="frames per sequence (default 90, as paper_sequences.py)")
+    ap.add_argument("--seeds", default=seeds, help="comma list of seeds (scenes, augmentations, RANSAC)")
+    ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
+
+
+def check_job_args(a, ap) -> None:
+    """Parse what :func:`add_job_args` added, in place: ``a.sequences`` a list of known names,
+    ``a.augment`` a list of folders (default fr2_desk under the data root), ``a.seed_list``."""
+    a.sequences = [s.strip() for s in a.sequences.split(",") if s.strip()]
+    bad = [s for s in a.sequences if s not in SEQUENCES]
+    if bad:
+        ap.error(f"unknown sequence(s) {', '.join(bad)}; choose from {', '.join(SEQUENCES)}")
+    if a.augment is None:
+        desk = common.find_named("rgbd_dataset_freiburg2_desk")
+        if desk is None:
+            ap.error(f"--augment: {common.missing_data_message()}")
+        a.augment = [desk]
+    else:
+        a.augment = augment_list(a.augment, ap)
+    try:
+        a.seed_list = common.int_list(a.seeds)
+    except ValueError as e:
+        ap.error(f"--seeds: {e}")
+    if a.frames < 3:
+        ap.error("--frames must be >= 3")
+
+
 def synthetic_sequence(name: str, frames: int, size: str, seed: int, sensor: bool, cache=None) -> Path:
     """Generate (once) a jaxvo synthetic sequence into the cache and return its folder."""
     import json
@@ -185,6 +222,19 @@ def sequence_jobs(sequences: Sequence[str], augment: Sequence[Path], seeds: Sequ
         jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
             p, persons=2, coverage=0.3, seed=seed, max_frames=frames, cache_dir=cache), None) for p in augment]
     return jobs
+
+
+def opened_jobs(jobs):
+    """Yield ``(name, seed, seq, true masks, frames)`` for each job of :func:`sequence_jobs`, the
+    sequence generated (cached) and read; a job whose sequence cannot be made is logged and skipped."""
+    for name, seed, make, camera in jobs:
+        try:
+            d = make()
+        except common.datasets.DatasetError as e:
+            common.log(f"{name}: skipped: {e}")
+            continue
+        seq = TumSequence(d, camera=camera)
+        yield name, seed, seq, true_masks(d, seq), common.load_frames(seq)
 
 
 def true_masks(folder, seq: TumSequence) -> list:

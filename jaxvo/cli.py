@@ -893,6 +893,36 @@ def gt_cmd(sequence_dir, out, bonn):
 
 # ----------------------------------------------------------------------------- map
 
+
+def _sequence_with_trajectory(f):
+    """The options of the commands that read a sequence folder with a trajectory (map, masks)."""
+    options = [
+        click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
+                     help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else "
+                          "from the folder name]"),
+        click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+                     help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]"),
+        click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
+                     help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds."),
+        click.option("--no-progress", is_flag=True, help="No progress bar.")]
+    for option in reversed(options):
+        f = option(f)
+    return f
+
+
+def _read_trajectory(traj):
+    """(timestamps, T_world_cam) of a trajectory file; DatasetError when it is missing or empty. A
+    ground-truth file may repeat a timestamp (TUM's tools keep the first); an estimate may not."""
+    from jaxvo.datasets import read_pose_file
+
+    if not Path(traj).is_file():
+        raise DatasetError(f"{traj}: trajectory file not found")
+    t, T = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
+    if len(t) == 0:
+        raise DatasetError(f"{traj}: no poses in the trajectory file")
+    return t, T
+
+
 @main.command("map", help=f"""Build a coloured 3-D point-cloud map (PLY) of a sequence from a trajectory.
 
 SEQUENCE_DIR is a TUM-layout folder; TRAJ a TUM trajectory file (T_world_cam per line, e.g.
@@ -932,34 +962,21 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
                    "frames at the trajectory's poses) instead of one estimate's outliers.")
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
-@click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
-                   "the folder name]")
-@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
-@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
-              help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@_sequence_with_trajectory
 @FORCE
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
             hindsight, no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
-    from jaxvo.datasets import read_pose_file
     from jaxvo.mapping import build_map, render_preview, write_ply
     from jaxvo.odometry import Config
 
     if use_masks + hindsight + no_labels > 1:
         raise _Fail("--use-masks, --hindsight and --no-labels exclude each other")
-    if not Path(traj).is_file():
-        raise DatasetError(f"{traj}: trajectory file not found")
+    t_traj, T_traj = _read_trajectory(traj)
     check_output(out_ply, [sequence_dir, traj], force)
     if preview is not None:
         check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
-    # a ground-truth file may repeat a timestamp (TUM's tools keep the first); an estimate may not
-    t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
-    if len(t_traj) == 0:
-        raise DatasetError(f"{traj}: no poses in the trajectory file")
     labels = None if no_labels else ("masks" if use_masks else "hindsight" if hindsight else "estimate")
     config = Config(method=method)
     click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames, every {every}, labels "
@@ -1041,14 +1058,7 @@ written as they are decided, into OUT_DIR.partial, which becomes OUT_DIR at the 
 @click.option("--thresh-depth", type=POSITIVE, default=None,
               help="Depth threshold in metres. [default: Config's, 0.05]")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Use at most N frames of the sequence.")
-@click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else from "
-                   "the folder name]")
-@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]")
-@click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
-              help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds.")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@_sequence_with_trajectory
 @FORCE
 @_handle_errors
 def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_lum, thresh_depth, max_frames,
@@ -1056,7 +1066,6 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_
     import cv2
 
     from jaxvo.config import Config
-    from jaxvo.datasets import read_pose_file
     from jaxvo.hindsight import sequence_masks
     from jaxvo.mapping import match_trajectory
     from jaxvo.runner import stamp_name
@@ -1067,11 +1076,9 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_
         raise _Fail(f"--offsets must be a comma list of integers, got {offsets!r}") from None
     if not any(offset_list):
         raise _Fail("--offsets must hold at least one nonzero frame offset")
-    if not Path(traj).is_file():
-        raise DatasetError(f"{traj}: trajectory file not found")
+    t_traj, T_traj = _read_trajectory(traj)
     check_output_folder(out_dir, [sequence_dir, traj], force)
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
-    t_traj, T_traj = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
     idx, T = match_trajectory(seq.timestamps, t_traj, T_traj, max_dt)
     if idx.size == 0:
         raise DatasetError(f"{traj}: no pose within {max_dt} s of a frame of {sequence_dir}")
