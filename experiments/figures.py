@@ -7,6 +7,9 @@ persistent static/dynamic segmentation) once along the sequence, seed 0, and wri
 * ``bonn_segmentation.png``: reference frames where people cover much of the image; blue =
   inliers of the estimate, green = outliers or pixels the segmentation marks dynamic,
   grey = no depth / not seen in the current frame;
+* ``bonn_hindsight.png``: the same reference frames with the masks decided in hindsight from
+  the odometry's trajectory (``jaxvo masks``, :func:`jaxvo.hindsight.sequence_masks`: each frame
+  against the frames up to 48 before and after it); green = moving, blue = the rest with depth;
 * ``bonn_map.png``: the map preview (perspective and top view): reference frames, about every
   5th frame, back-projected with their estimated poses, the points on pixels the segmentation
   marked dynamic painted green (``jaxvo.mapping.MOVING_COLOUR``), 1 cm voxels;
@@ -29,7 +32,7 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo import mapping, viz  # noqa: E402
+from jaxvo import hindsight, mapping, viz  # noqa: E402
 from jaxvo.odometry import Config, TrackConfig, track  # noqa: E402
 
 DEFAULT_SEQUENCE = "bonn/rgbd_bonn_crowd"
@@ -80,7 +83,14 @@ def main(argv=None):
             for i in range(0, len(tiles), 2)]
     grid = np.concatenate(rows, 0)
     p1 = viz.save_image(grid[::2, ::2], out / "bonn_segmentation.png")
-    common.log(f"wrote {p1} (reference frames {[panels[j][0] for j in show if j in panels]})")
+    shown_refs = [panels[j][0] for j in show if j in panels]
+    common.log(f"wrote {p1} (reference frames {shown_refs})")
+    moving = dict(hindsight.sequence_masks(seq.frame, tr.poses, seq.camera, frames=sorted(set(shown_refs))))
+    tiles = [viz.outlier_overlay(frames[i].intensity, ~moving[i], np.asarray(frames[i].depth) > 0) for i in shown_refs]
+    grid = np.concatenate([np.concatenate(tiles[i:i + 2] + [np.full_like(tiles[0], 255)] * (2 - len(tiles[i:i + 2])), 1)
+                           for i in range(0, len(tiles), 2)], 0)
+    p1 = viz.save_image(grid[::2, ::2], out / "bonn_hindsight.png")
+    common.log(f"wrote {p1} (moving in hindsight: {', '.join(f'{moving[i].mean():.1%}' for i in shown_refs)})")
 
     # map frames: reference frames (they carry a segmentation), about every `every`-th frame
     refs = sorted(dynamic)

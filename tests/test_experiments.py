@@ -294,13 +294,16 @@ def test_keyframes_small(tmp_path):
 
 
 def test_figures_small(tmp_path):
-    """experiments/figures.py: the default odometry's overlay and map on a few real frames."""
+    """experiments/figures.py: the default odometry's overlay, the hindsight masks and the map on a few
+    real frames."""
     _require(DYNAMIC)
     import cv2
     out = _script("figures").main([str(DYNAMIC), "--max-frames", "10", "--frames", "7,9", "--out-dir",
                                    str(tmp_path), "--ply", str(tmp_path / "map.ply")])
     seg = cv2.imread(str(out / "bonn_segmentation.png"))
     assert seg is not None and seg.shape == (240, 640, 3)    # two 640x480 panels side by side, halved
+    hs = cv2.imread(str(out / "bonn_hindsight.png"))
+    assert hs is not None and hs.shape == seg.shape
     assert cv2.imread(str(out / "bonn_map.png")) is not None
     from jaxvo.mapping import read_ply
     pts, cols = read_ply(tmp_path / "map.ply")
