@@ -50,6 +50,8 @@ def parse_args(argv=None):
     ap.add_argument("--ratio", type=float, default=HindsightParams().ratio, help="HindsightParams.ratio")
     ap.add_argument("--region-ratio", type=float, default=HindsightParams().region_ratio,
                     help="HindsightParams.region_ratio")
+    ap.add_argument("--depth-slope", type=float, default=HindsightParams().depth_slope,
+                    help="HindsightParams.depth_slope")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: seq1 only, 8 frames, seed 0, no augmentation")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks.md",
@@ -92,7 +94,7 @@ def _cell(values, spec=".3f") -> str:
 def main(argv: Optional[Sequence[str]] = None) -> dict:
     a = parse_args(argv)
     argv_list = list(sys.argv[1:] if argv is None else argv)
-    params = HindsightParams(ratio=a.ratio, region_ratio=a.region_ratio)
+    params = HindsightParams(ratio=a.ratio, region_ratio=a.region_ratio, depth_slope=a.depth_slope)
     t_start = time.perf_counter()
     jobs = paper_sequences.sequence_jobs([], a.augment, a.seed_list, a.frames, cache=a.cache)
     jobs += paper_sequences.sequence_jobs(a.sequences, [], a.synthetic_seed_list, a.frames, cache=a.cache)
@@ -114,7 +116,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
 
     lines = common.provenance_md("Moving-pixel masks in hindsight", "experiments/hindsight_masks.py", argv_list)
     lines += [f"Offsets {', '.join(str(o) for o in OFFSETS)} frames; ratio {params.ratio}, region_ratio "
-              f"{params.region_ratio} (`jaxvo.hindsight.HindsightParams`). {a.frames} frames at most per "
+              f"{params.region_ratio}, depth_slope {params.depth_slope} (`jaxvo.hindsight.HindsightParams`). {a.frames} frames at most per "
               f"sequence; the augmentation's seeds {a.seeds}, the synthetic sequences' {a.synthetic_seeds}. "
               f"Total wall time {time.perf_counter() - t_start:.0f} s.", "",
               "*online*: the default odometry's moving mask as `paper_sequences.py` scores it (per estimate, "

@@ -1032,8 +1032,8 @@ written by 'jaxvo run') whose timestamps are matched to the frames within --max-
 Each frame with a pose is compared with the frames --offsets away, before and after it, at
 the trajectory's relative poses (jaxvo.hindsight): a pixel is moving when, in at least
 --ratio of the frames that see it (not hidden behind something nearer), its depth or its
-luminance changed (beyond the inlier thresholds, the pair's exposure offset and the
-image gradient); a 3-D region at least --region-ratio of whose pixels move is flagged
+luminance changed (beyond the inlier thresholds, the depth's growing with z^2, the pair's
+exposure offset and the image gradient); a 3-D region at least --region-ratio of whose pixels move is flagged
 whole. Unlike the masks of 'jaxvo run --save-masks', these use later frames too, so a
 person is flagged before it has moved off its pixels; they are only as good as the poses.
 
@@ -1053,6 +1053,8 @@ written as they are decided, into OUT_DIR.partial, which becomes OUT_DIR at the 
 @click.option("--region-ratio", type=click.FloatRange(0, 1, min_open=True),
               default=HindsightParams().region_ratio, show_default=True,
               help="Share of a 3-D region's pixels that must move for the whole region to be flagged.")
+@click.option("--depth-slope", type=click.FloatRange(min=0), default=HindsightParams().depth_slope,
+              show_default=True, help="The depth tolerance grows with depth: thresh-depth + depth-slope * z^2 (m).")
 @click.option("--thresh-lum", type=POSITIVE, default=None,
               help="Luminance threshold (0-255). [default: Config's, 30]")
 @click.option("--thresh-depth", type=POSITIVE, default=None,
@@ -1061,8 +1063,8 @@ written as they are decided, into OUT_DIR.partial, which becomes OUT_DIR at the 
 @_sequence_with_trajectory
 @FORCE
 @_handle_errors
-def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_lum, thresh_depth, max_frames,
-              camera_preset, depth_scale, max_dt, no_progress, force):
+def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_slope, thresh_lum, thresh_depth,
+              max_frames, camera_preset, depth_scale, max_dt, no_progress, force):
     import cv2
 
     from jaxvo.config import Config
@@ -1086,7 +1088,7 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, thresh_
     poses[idx] = T
     config = Config().replace(**{k: v for k, v in (("thresh_lum", thresh_lum), ("thresh_depth", thresh_depth))
                                  if v is not None})
-    params = HindsightParams(ratio=ratio, region_ratio=region_ratio)
+    params = HindsightParams(ratio=ratio, region_ratio=region_ratio, depth_slope=depth_slope)
     click.echo(f"jaxvo masks: {seq.name}, {idx.size} of {len(seq)} frames with a pose, offsets "
                f"{','.join(str(o) for o in offset_list)}, {seq.camera!r}", err=True)
     tmp = partial_path(out_dir, fresh=True)

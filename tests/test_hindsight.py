@@ -210,3 +210,19 @@ def test_map_with_hindsight_labels(seq1, tmp_path):
     r = CliRunner().invoke(main, ["map", str(seq1), str(seq1.parent / "traj.txt"), str(tmp_path / "x.ply"),
                                   "--hindsight", "--use-masks", "--no-progress"])
     assert r.exit_code == 2 and "exclude each other" in r.stderr
+
+
+def test_depth_tolerance_grows_with_depth():
+    """A wall 3.5 m away that a view sees 8 cm farther (a disparity step there, or a pose a few
+    tenths of a degree off) changed with the flat 5 cm tolerance, not with depth_slope 0.01
+    (5 + 12 cm there); a wall 1 m away seen 8 cm farther changed with either."""
+    inten = _texture(2)
+    for z, flat, grown in ((3.5, True, False), (1.0, True, True)):
+        depth = np.full((H, W), z, np.float32)
+        ref = hindsight.frame_level(inten, depth)
+        view = hindsight.frame_level(inten, depth + 0.08)
+        for slope, expect in ((0.0, flat), (0.01, grown)):
+            seen, changed = (np.asarray(x) for x in hindsight.view_votes(ref, view, np.eye(4, dtype=np.float32), CAM,
+                                                                        30.0, 0.05, slope))
+            inner = (slice(2, H - 2), slice(2, W - 2))
+            assert seen[inner].all() and changed[inner].all() == expect and changed[inner].any() == expect
