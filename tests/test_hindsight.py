@@ -170,6 +170,23 @@ def test_masks_command_writes_what_eval_scores(seq1, tmp_path):
     assert "outlier mask vs true moving pixels (12 frames)" in r.output
 
 
+def test_masks_command_leaves_held_poses_out(seq1, tmp_path):
+    """A pose that 'jaxvo run' marked held (# held) gets no mask and the others are still written."""
+    t, T = read_tum_trajectory(seq1.parent / "traj.txt")
+    traj = tmp_path / "held.txt"
+    lines = (seq1.parent / "traj.txt").read_text().splitlines()
+    data = [i for i, ln in enumerate(lines) if ln and not ln.startswith("#")]
+    lines.insert(data[5], f"# held {lines[data[5]].split()[0]}")
+    traj.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "m"
+    r = CliRunner().invoke(main, ["masks", str(seq1), str(traj), str(out), "--max-frames", "10", "--offsets", "-4,4",
+                                  "--no-progress"])
+    assert r.exit_code == 0, r.output + r.stderr
+    stamps, _ = read_mask_dir(out)
+    assert len(stamps) == 9 and not np.isclose(stamps, t[5], atol=1e-6).any()
+    assert "(1 held poses of" in r.stderr
+
+
 @pytest.mark.parametrize("case", ["offsets", "zero-offsets", "no-traj", "no-overlap", "not-empty"])
 def test_masks_command_bad_input(seq1, tmp_path, case):
     args = ["masks", str(seq1), str(seq1.parent / "traj.txt"), str(tmp_path / "out"), "--no-progress"]
@@ -226,3 +243,24 @@ def test_depth_tolerance_grows_with_depth():
                                                                         30.0, 0.05, slope))
             inner = (slice(2, H - 2), slice(2, W - 2))
             assert seen[inner].all() and changed[inner].all() == expect and changed[inner].any() == expect
+
+
+def test_run_marks_a_failed_frame_held(seq1, tmp_path):
+    """'jaxvo run' writes '# held <stamp>' before the pose of a frame whose estimate failed (here a
+    frame of noise), and only there; the trajectory readers still read every pose."""
+    import shutil
+
+    import cv2
+
+    from jaxvo.trajectory import read_held
+    d = tmp_path / "seq"
+    shutil.copytree(seq1, d)
+    seq = TumSequence(d)
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(seq.rgb_paths[3]), rng.integers(0, 255, (H, W, 3), dtype=np.uint8))
+    cv2.imwrite(str(seq.depth_paths[3]), rng.integers(2500, 15000, (H, W), dtype=np.uint16))
+    out = tmp_path / "traj.txt"
+    r = CliRunner().invoke(main, ["run", str(d), "--out", str(out), "--max-frames", "6", "--no-progress"])
+    assert r.exit_code == 0, r.output + r.stderr
+    assert np.allclose(read_held(out), [seq.timestamps[3]], atol=1e-6)
+    assert len(read_tum_trajectory(out)[0]) == 6

@@ -150,3 +150,21 @@ def test_read_sorts_and_refuses_duplicate_stamps(tmp_path):
         read_tum_trajectory(p)
     t, P = read_pose_file(p, duplicates="first")
     assert t.tolist() == [1.0, 2.0] and P[:, 0, 3].tolist() == [1.0, 2.0]
+
+
+def test_held_poses_are_marked_and_read_back(tmp_path):
+    """A held pose gets a '# held <stamp>' line before it: read_held returns its stamp, and the pose
+    readers (which skip comments) still read every pose."""
+    from jaxvo.trajectory import TrajectoryWriter, read_held, read_tum_trajectory
+    p = tmp_path / "t.txt"
+    with TrajectoryWriter(p) as w:
+        w.write_first(1.0)
+        w.write(1.033333, np.eye(4), held=True)
+        w.write(1.066667, np.eye(4))
+    assert np.allclose(read_held(p), [1.033333])
+    t, T = read_tum_trajectory(p)
+    assert np.allclose(t, [1.0, 1.033333, 1.066667]) and T.shape == (3, 4, 4)
+    assert read_held(tmp_path / "t.txt").dtype == np.float64
+    q = tmp_path / "plain.txt"
+    q.write_text("1.0 0 0 0 0 0 0 1\n")
+    assert read_held(q).size == 0
