@@ -85,7 +85,9 @@ def main(argv=None):
     p1 = viz.save_image(grid[::2, ::2], out / "bonn_segmentation.png")
     shown_refs = [panels[j][0] for j in show if j in panels]
     common.log(f"wrote {p1} (reference frames {shown_refs})")
-    moving = dict(hindsight.sequence_masks(seq.frame, tr.poses, seq.camera, frames=sorted(set(shown_refs))))
+    # the held frames' poses are guesses: no views (as jaxvo masks leaves out '# held' poses)
+    known = np.where(np.concatenate([[True], tr.valid])[:, None, None], tr.poses, np.nan)
+    moving = dict(hindsight.sequence_masks(seq.frame, known, seq.camera, frames=sorted(set(shown_refs))))
     tiles = [viz.outlier_overlay(frames[i].intensity, ~moving[i], np.asarray(frames[i].depth) > 0) for i in shown_refs]
     grid = np.concatenate([np.concatenate(tiles[i:i + 2] + [np.full_like(tiles[0], 255)] * (2 - len(tiles[i:i + 2])), 1)
                            for i in range(0, len(tiles), 2)], 0)
