@@ -176,9 +176,10 @@ class TrajectoryWriter:
         pose is a guess (its estimate failed and the previous pose was kept): a comment line
         ``# held <stamp>`` before it says so (:func:`read_held`), which TUM readers skip."""
         T = _as_pose(T_world_cam, "T_world_cam")
+        line = format_pose_line(stamp, T)
         if held:
-            self._write_line(f"{HELD_MARK} {format_pose_line(stamp, T).split()[0]}")
-        self._write_line(format_pose_line(stamp, T))
+            self._write_line(f"{HELD_MARK} {line.split()[0]}")
+        self._write_line(line)
         self.count += 1
         self.last_pose, self.last_stamp = T.copy(), float(stamp)
         return T
