@@ -18,7 +18,7 @@ trajectory's relative pose, at full resolution. In a view, a reference pixel is
   less the pair's exposure offset (the median luminance residual of the pixels whose depth
   agrees, :func:`jaxvo.brightness.masked_median`), differs by more than ``thresh_lum`` plus
   the view's gradient magnitude there (what a one-pixel misalignment at an edge explains;
-  without it the static scene's edges were a fifth of the flagged pixels).
+  without it the precision on the fr2_desk augmentation's seeds 0-5 was 0.76 instead of 0.79).
 
 A pixel is moving when it changed in at least ``ratio`` of the views that saw it. The
 reference's 3-D points are then grouped (:func:`jaxvo.segmentation.coherent_regions`,
