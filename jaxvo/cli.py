@@ -1111,6 +1111,9 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
             moving.append(float(m.mean()))
             if pbar is not None:
                 pbar.update(1)
+    except (DatasetError, ValueError, OSError) as e:
+        raise DatasetError(_one_line(e) + (f" ({len(moving)} finished masks kept in {tmp})" if moving else "")) \
+            from None
     finally:
         if pbar is not None:
             pbar.close()

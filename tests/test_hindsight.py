@@ -187,6 +187,25 @@ def test_masks_command_leaves_held_poses_out(seq1, tmp_path):
     assert "(1 held poses of" in r.stderr
 
 
+def test_masks_command_keeps_what_it_wrote_when_a_frame_is_bad(seq1, tmp_path):
+    """A frame without any valid depth half way stops the command with one error line naming the
+    file; the masks decided before it stay in OUT_DIR.partial, and the line says so."""
+    import shutil
+
+    import cv2
+    d = tmp_path / "seq"
+    shutil.copytree(seq1, d)
+    bad = TumSequence(d).depth_paths[6]
+    cv2.imwrite(str(bad), np.zeros((H, W), np.uint16))
+    r = CliRunner().invoke(main, ["masks", str(d), str(seq1.parent / "traj.txt"), str(tmp_path / "m"),
+                                  "--max-frames", "10", "--offsets", "-2,2", "--no-progress"])
+    assert r.exit_code == 2
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("error: ")]
+    assert len(errors) == 1 and str(bad) in errors[0] and "finished masks kept in" in errors[0]
+    kept = list((tmp_path / "m.partial").glob("*.png"))
+    assert len(kept) == 4 and not (tmp_path / "m").exists()     # frames 0-3; frame 4 needs frame 6
+
+
 @pytest.mark.parametrize("case", ["offsets", "zero-offsets", "no-traj", "no-overlap", "not-empty"])
 def test_masks_command_bad_input(seq1, tmp_path, case):
     args = ["masks", str(seq1), str(seq1.parent / "traj.txt"), str(tmp_path / "out"), "--no-progress"]
