@@ -1121,5 +1121,6 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
     click.echo(f"wrote {len(moving)} masks to {out_dir} (moving pixels per frame: {100 * np.mean(moving):.1f} % "
                f"mean, {100 * np.max(moving):.1f} % max; {time.perf_counter() - t0:.1f} s)")
 
+
 if __name__ == "__main__":  # pragma: no cover
     main()
