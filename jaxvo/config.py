@@ -141,10 +141,11 @@ class Config:
       augmentation (one seed of 12 differs) and fr2_desk as with "none"; it costs about 1.1x / 1.05x the time per static /
       Bonn pair (experiments/results/variants_brightness.md). Before hypotheses were ranked by
       surface (score_depth_power) it measured no gain there (brightness_*.md of 2026-11-23).
-    scan_levels: *static*, RANSAC only: run the RANSAC levels that refine on the same number of
-      points (levels 3-1 with the default tiles, 4800 points each) as one ``lax.scan`` over one
-      level body (images padded to the group's largest level, scoring grids to the longest)
-      instead of one copy of the code per level; the other levels run per level. Default
+    scan_levels: *static*, RANSAC only: run consecutive RANSAC levels as one ``lax.scan`` over
+      one level body (images padded to the group's largest level, point lists and scoring grids
+      to the longest) instead of one copy of the code per level, as far as the padded points stay
+      within 10 % of all levels' refinement points (levels 3-1 with the default tiles, 4800
+      points each; levels 3-2 in ``Config.paper()``); the other levels run per level. Default
       True: XLA compiles the estimator in 9.3 instead of 14.2 s, with the same poses to
       float32 rounding, at 1.00x (static) / 1.13x (Bonn) the time per pair of the per-level
       code in the same run (``python experiments/variants.py --methods ransac --pairs 10

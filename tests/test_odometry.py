@@ -412,17 +412,20 @@ def test_brightness_offset_recovers_an_exposure_change(static_pair):
 def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
     """Config.scan_levels (the default: the levels as one lax.scan over padded, stacked levels)
     against the per-level code, compiled separately for each level's own shapes: the same RANSAC
-    draws and iterations at every level and the same pose to float32 rounding. ransac_finest=1
-    splits the levels into groups (RANSAC on levels 3-1, refinement only on level 0), and with the
-    (4, 2, 1, 1) tiles into [3], [2, 1], [0] (levels 2 and 1 both refine on 19200 points, level 3 on
-    4800: the scan groups only levels whose point lists have one length); the scoring grids of
-    levels 2 and 1 differ in length and are padded. Levels without RANSAC run per level."""
+    draws and iterations at every level and the same pose to float32 rounding. Consecutive RANSAC
+    levels share a scan while their padding stays within 10 % of all levels' refinement points:
+    the default's levels 3-1 (4800 points each; level 0 refines only, per level), the paper's
+    levels 3-2 (every pixel: 4800 and 19200 points, so level 3's point list and scoring grid are
+    padded), and with the (4, 2, 1, 1) tiles [3], [2, 1], [0] (level 3's 4800 points padded to
+    19200 would be 23 %). Classic and Huber run per level."""
     from jaxvo.odometry import _level_groups
+    assert _level_groups(Config(), 4, 640, 480) == [[3, 2, 1], [0]]
+    assert _level_groups(Config.paper(), 4, 640, 480) == [[3, 2], [1], [0]]
     assert _level_groups(Config(blocks=(4, 2, 1, 1)), 4, 640, 480) == [[3], [2, 1], [0]]
     assert _level_groups(Config(method="classic"), 4, 640, 480) == [[3], [2], [1], [0]]
-    assert _level_groups(Config(scan_levels=False, blocks=(4, 2, 1, 1)), 4, 640, 480) == [[3, 2, 1], [0]]
+    assert _level_groups(Config(scan_levels=False), 4, 640, 480) == [[3], [2], [1], [0]]
     a, b = dynamic_pair
-    cfg = Config(ransac_finest=1, blocks=(4, 2, 1, 1), scan_levels=False)
+    cfg = Config.paper(scan_levels=False)
     assert Config().scan_levels
     per_level = estimate_motion(a.frame(), b.frame(), CAM, cfg, jax.random.key(0))
     scanned = estimate_motion(a.frame(), b.frame(), CAM, cfg.replace(scan_levels=True), jax.random.key(0))
