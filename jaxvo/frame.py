@@ -141,5 +141,14 @@ def validate_pair(ref: Frame, cur: Frame, camera) -> None:
             d = np.asarray(f.depth)
         except Exception:  # a tracer: cannot check values
             continue
-        if not np.any(np.isfinite(d) & (d > 0)):
+        if not _has_valid_depth(d):
             raise ValueError(f"{name} frame: depth has no valid pixel (all zero, negative or NaN)")
+
+
+def _has_valid_depth(d: np.ndarray) -> bool:
+    """Whether (H, W) depth ``d`` has a finite positive pixel. Every 8th row first: a frame with
+    depth nearly always has one there, and the whole test costs 0.4 ms at 640x480, a per-pair
+    cost of every estimate."""
+    def valid(x):
+        return bool(np.any((x > 0) & (x < np.inf)))   # NaN fails both comparisons
+    return valid(d[::8]) or valid(d)

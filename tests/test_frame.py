@@ -159,3 +159,24 @@ def test_validate_pair():
         validate_pair(a, Frame(b.intensity, b.depth[:-1]), CAM)
     with pytest.raises(ValueError, match="jaxvo.Frame"):
         validate_pair(a, (1, 2, 3), CAM)
+
+
+def test_valid_depth_check_is_the_full_test_whatever_rows_hold_the_depth():
+    """validate_pair's "no valid depth" check looks at every 8th row first; it must agree with
+    the plain test (a finite positive pixel anywhere) wherever the one valid pixel is."""
+    from jaxvo.frame import _has_valid_depth
+
+    def plain(d):
+        return bool(np.any(np.isfinite(d) & (d > 0)))
+
+    for fill in (0.0, -1.0, np.nan, np.inf):
+        d = np.full((48, 64), fill, np.float32)
+        assert _has_valid_depth(d) == plain(d) is False
+        for row in (0, 3, 8, 47):
+            e = d.copy()
+            e[row, 5] = 1.5
+            assert _has_valid_depth(e) == plain(e) is True
+    d = np.zeros((48, 64), np.float32)
+    d[::8] = np.inf
+    d[3, 2] = np.nan
+    assert _has_valid_depth(d) == plain(d) is False
