@@ -651,7 +651,8 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
 def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
     """Compile the segmentation's programs that the first pair runs after its estimate
     (:func:`_trust_ratios`, :func:`_unexplained`, :func:`_update_map`, :func:`_new_reference_map`
-    with few views), in a background thread started at the first frame; returns the thread.
+    with few views, and the stack of those views), in a background thread started at the first
+    frame; returns the thread.
 
     In a new process the first pair is mostly the estimator's compilation: first its trace
     (Python, one core), then XLA (both cores, after a serial phase). These programs, compiled
@@ -684,6 +685,8 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
                 fn.lower(*args).compile()
             except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
                 return
+        # and the stack of the views' depths (Odometry._set_reference), run once to compile it
+        jnp.stack([jnp.zeros(md.shape, jnp.float32)] * n)
 
     thread = threading.Thread(target=compile_all, name="jaxvo-compile-map")
     thread.start()
