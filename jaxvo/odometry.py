@@ -307,14 +307,14 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     with jax.named_scope("final"):
         dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
         hl, wl = ref_l.depth.shape
-        n_valid = jnp.maximum(jnp.sum(dense.valid), 1)
-        ratio = jnp.sum(inl) / n_valid
         # residual scale on the pixels the final solve trusted (inliers for ransac)
         wts = inl if config.method == "ransac" else res.valid_int
-        nw = jnp.maximum(jnp.sum(wts), 1)
+        counts = _final_counts(ref_l, res, inl, dense, wts, config)
+        ratio = counts.inliers / jnp.maximum(counts.valid, 1)
+        nw = jnp.maximum(counts.weighted, 1)
         var = jnp.sum(jnp.where(wts, res.r_int ** 2, 0.0)) / nw
         info = hessian / jnp.maximum(var, 1e-6)
-        valid = _trusted(_trust_stats(ref_l, res, inl, dense, info, T, config), config)
+        valid = _trusted(_trust_stats(counts, info, T), config)
     return MotionEstimate(T, geometry.log(T), inl.reshape(hl, wl), res.valid_depth.reshape(hl, wl), ratio,
                           hyps, iters, valid, info, jnp.sqrt(var),
                           (res.valid_depth & (res.r_depth < -config.thresh_depth)).reshape(hl, wl),
@@ -385,25 +385,51 @@ class TrustStats(NamedTuple):
     photometric_agreement: jnp.ndarray
 
 
-def _trust_stats(ref_l, res, inl, dense, info, T, config) -> TrustStats:
-    """The statistics count every reference pixel with valid depth, trusted as static or not:
+class _Counts(NamedTuple):
+    """Pixel counts (int32 scalars) of the final dense pass, see :func:`_final_counts`."""
+    valid: jnp.ndarray           # reference pixels with valid depth
+    inliers: jnp.ndarray         # inlier pixels
+    weighted: jnp.ndarray        # pixels the residual scale is taken over
+    valid_inliers: jnp.ndarray
+    overlap: jnp.ndarray
+    depth_ok: jnp.ndarray
+    textured: jnp.ndarray
+    textured_depth_ok: jnp.ndarray
+    textured_agree: jnp.ndarray
+
+
+def _final_counts(ref_l, res, inl, dense, wts, config) -> _Counts:
+    """The final pass's pixel counts (what :class:`TrustStats` and the inlier ratio divide) as one
+    reduction over the pixels: XLA reduces each ``jnp.sum`` in a pass of its own over the level
+    (1.0 against 0.25 ms for 7 counts at 640x480 on this CPU), and integer sums are exact in any
+    order. ``wts``: (N,) bool, the pixels the residual scale is taken over.
+
+    The statistics count every reference pixel with valid depth, trusted as static or not:
     counting only the pixels the segmentation trusts was measured worse on Bonn crowd
     (experiments/keyframes.py defaults, seeds 0-2: RPE 1 s 0.099 vs 0.080 m/s, ATE 0.064 vs
     0.056 m), since a wrong segmentation then also hides a wrong estimate."""
     ref_valid = dense.valid
-
-    def frac(a, b):
-        return jnp.sum(a) / jnp.maximum(jnp.sum(b), 1)
-    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
-    finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
     g = jnp.sqrt(ref_l.igrad[..., 1] ** 2 + ref_l.igrad[..., 2] ** 2).reshape(-1)
     textured = ref_valid & (g > config.thresh_lum / 6)
     overlap = res.valid_depth & ref_valid
     depth_ok = overlap & (jnp.abs(res.r_depth) < config.thresh_depth)
     photo_ok = jnp.abs(res.r_int) < config.thresh_lum
-    return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(inl & ref_valid, ref_valid),
-                      frac(overlap, ref_valid), frac(depth_ok, overlap), frac(textured, ref_valid),
-                      frac(textured & depth_ok & photo_ok, textured & depth_ok))
+    masks = (ref_valid, inl, wts, inl & ref_valid, overlap, depth_ok, textured, textured & depth_ok,
+             textured & depth_ok & photo_ok)
+    ops = tuple(m.astype(jnp.int32) for m in masks)
+    sums = jax.lax.reduce(ops, (jnp.int32(0),) * len(ops), lambda a, b: tuple(x + y for x, y in zip(a, b)), (0,))
+    return _Counts(*sums)
+
+
+def _trust_stats(c: _Counts, info, T) -> TrustStats:
+    """The :class:`TrustStats` of the final pass's counts, information matrix and pose."""
+    def frac(a, b):
+        return a / jnp.maximum(b, 1)
+    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
+    finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
+    return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(c.valid_inliers, c.valid),
+                      frac(c.overlap, c.valid), frac(c.depth_ok, c.overlap), frac(c.textured, c.valid),
+                      frac(c.textured_agree, c.textured_depth_ok))
 
 
 def _trusted(s: TrustStats, config: Config):
@@ -421,7 +447,8 @@ def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info, of
     ref_l = brightness.apply(ref_l, offset)
     cur_l = build_pyramid(cur_int, cur_depth, L, config.max_depth)[level]
     dense, res, inl = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
-    s = _trust_stats(ref_l, res, inl, dense, info, T, config)
+    wts = inl if config.method == "ransac" else res.valid_int
+    s = _trust_stats(_final_counts(ref_l, res, inl, dense, wts, config), info, T)
     return s, _trusted(s, config)
 
 
