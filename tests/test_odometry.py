@@ -436,3 +436,15 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
     np.testing.assert_allclose(np.asarray(scanned.T_cur_ref), np.asarray(per_level.T_cur_ref), atol=1e-5)
     assert np.mean(np.asarray(scanned.inlier_mask) == np.asarray(per_level.inlier_mask)) > 0.999
     assert bool(scanned.valid) == bool(per_level.valid)
+
+
+def test_pixel_counts_are_the_sums_of_the_masks():
+    """The estimator's and the map's pixel counts come from one variadic reduction: the same
+    integers as a jnp.sum per mask, for 1-D and 2-D masks."""
+    from jaxvo.odometry import _pixel_counts
+    rng = np.random.default_rng(3)
+    for shape in ((307,), (48, 64)):
+        masks = [jnp.asarray(rng.random(shape) < p) for p in (0.0, 0.2, 0.5, 1.0)]
+        counts = _pixel_counts(*masks)
+        assert [int(c) for c in counts] == [int(jnp.sum(m)) for m in masks]
+        assert all(c.dtype == jnp.int32 for c in counts)
