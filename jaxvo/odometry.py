@@ -305,10 +305,8 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     # per-pixel masks and statistics at the finest level processed, all pixels
     # ref_l, cur_l: the finest level processed, ref_l with the brightness fitted there
     with jax.named_scope("final"):
-        dense, res, inl = _final_residuals(ref_l, cur_l, cam, T, config)
+        dense, res, inl, wts = _final_residuals(ref_l, cur_l, cam, T, config)
         hl, wl = ref_l.depth.shape
-        # residual scale on the pixels the final solve trusted (inliers for ransac)
-        wts = inl if config.method == "ransac" else res.valid_int
         counts = _final_counts(ref_l, res, inl, dense, wts, config)
         ratio = counts.inliers / jnp.maximum(counts.valid, 1)
         nw = jnp.maximum(counts.weighted, 1)
@@ -353,10 +351,12 @@ def _gated(ref_l, cur_l, cam, T, gate):
 
 
 def _final_residuals(ref_l, cur_l, cam, T, config):
-    """Every reference pixel of a level, its residuals at the final pose and the inlier mask."""
+    """Every reference pixel of a level, its residuals at the final pose, the inlier mask and the
+    pixels the residual scale is taken over (those the final solve trusted: inliers for ransac)."""
     dense = reference_points(ref_l, cam, 1)
     res = residuals(T, dense, cur_l, cam)
-    return dense, res, inliers(res, config.thresh_lum, config.thresh_depth)
+    inl = inliers(res, config.thresh_lum, config.thresh_depth)
+    return dense, res, inl, (inl if config.method == "ransac" else res.valid_int)
 
 
 class TrustStats(NamedTuple):
@@ -451,8 +451,7 @@ def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info, of
     ref_l = build_pyramid(ref_int, ref_depth, L, config.max_depth)[level]
     ref_l = brightness.apply(ref_l, offset)
     cur_l = build_pyramid(cur_int, cur_depth, L, config.max_depth)[level]
-    dense, res, inl = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
-    wts = inl if config.method == "ransac" else res.valid_int
+    dense, res, inl, wts = _final_residuals(ref_l, cur_l, camera.at_level(level), T, config)
     s = _trust_stats(_final_counts(ref_l, res, inl, dense, wts, config), info, T)
     return s, _trusted(s, config)
 
