@@ -36,7 +36,7 @@ for _p in (str(_REPO), str(_HERE)):
 
 import jax  # noqa: E402
 
-from jaxvo import datasets, metrics, peers, trajectory  # noqa: E402
+from jaxvo import datasets, machine, metrics, peers, trajectory  # noqa: E402
 from jaxvo.odometry import METHODS, Config, estimate_motion  # noqa: E402
 
 RESULTS = _HERE / "results"
@@ -72,8 +72,8 @@ def machine_info() -> Dict[str, object]:
     import cv2
     info = {
         "cpu_count": os.cpu_count(),
-        "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "cpu_model": _cpu_model(),
+        "cpu_affinity": machine.usable_cores(),
+        "cpu_model": machine.cpu_model(),
         "platform": platform.platform(),
         "python": platform.python_version(),
         "jax": jax.__version__,
@@ -86,16 +86,6 @@ def machine_info() -> Dict[str, object]:
     if peers.open3d_available():
         info["open3d"] = peers._open3d_import()[0].__version__
     return info
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.lower().startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def provenance_md(title: str, script: str, argv, extra: str = "") -> List[str]:

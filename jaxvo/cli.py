@@ -290,6 +290,23 @@ def main():
 
 # ----------------------------------------------------------------------------- run
 
+def _note_other_machine(config_file, settings) -> None:
+    """Say so when ``--config TRAJ`` reruns a trajectory that another machine wrote (its
+    ``# machine:`` header, :mod:`jaxvo.machine`): the rerun may then differ at float rounding."""
+    from jaxvo import machine
+
+    recorded = settings.get("machine")
+    if recorded is None:
+        return
+    if not isinstance(recorded, dict):
+        raise DatasetError(f"{config_file}: '# machine:' header: expected a JSON object, got {recorded!r}")
+    diffs = machine.differences(recorded, machine.record())
+    if diffs:
+        click.echo(f"note: {config_file} was written on another machine ({'; '.join(diffs)}); the rerun "
+                   "may differ at float rounding, which the robust steps through a crowd can grow "
+                   "(README: Reproducible runs)", err=True)
+
+
 @main.command("run", help=f"""Track a sequence and write its trajectory.
 
 SEQUENCE_DIR is an RGB-D sequence folder: the TUM RGB-D layout (rgb.txt, depth.txt, rgb/,
@@ -303,8 +320,9 @@ median is outside 0.2-10 m (or under 0.7 m with the layout's default scale: mill
 as 1/5000 m) stops the run with the --depth-scale to pass.
 
 The trajectory file starts with '#' lines naming jaxvo's version, the method, seed,
-full config and keyframe policy (JSON) and the reader's settings (jaxvo run SEQ --config
-TRAJ reruns it bitwise); it is written and flushed one line per frame to OUT.partial while
+full config and keyframe policy (JSON), the machine (CPU, usable cores, jax/jaxlib) and the
+reader's settings (jaxvo run SEQ --config TRAJ reruns it bitwise on the same machine, and
+says what differs on another); it is written and flushed one line per frame to OUT.partial while
 the run goes on (the first frame at the identity) and renamed to OUT when complete, so a run
 that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in OUT.partial and
 never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was done and
@@ -347,7 +365,8 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
               help="JSON object of jaxvo.Config fields (e.g. {\"p\": 0.99, \"w\": 0.3, \"thresh_lum\": 30, "
                    "\"blocks\": [4, 2, 1, 1]}), or a trajectory file written by jaxvo run: its '#' header gives "
                    "the config, seed, keyframe policy, frames, depth scale and intrinsics, so the run is "
-                   "reproduced bitwise. Options given on the command line override it.")
+                   "reproduced bitwise on the same machine (with the same usable cores; a note names what "
+                   "differs on another). Options given on the command line override it.")
 @click.option("--thresh-lum", type=POSITIVE, default=None,
               help="Inlier threshold on |luminance residual|, 0-255 units. [default: 30]")
 @click.option("--thresh-depth", type=POSITIVE, default=None,
@@ -409,6 +428,7 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
     sequence_dir = dirs[0]
 
     settings = read_run_settings(config_file) if config_file is not None else {}
+    _note_other_machine(config_file, settings)
     ctx = click.get_current_context()
 
     def default(name):  # not given on the command line: a trajectory header's value may take its place

@@ -17,6 +17,7 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
+from jaxvo import machine
 from jaxvo.camera import PRESETS, Camera
 from jaxvo.datasets import DatasetError, TumSequence, open_sequence
 from jaxvo.mapping import moving_mask
@@ -27,8 +28,9 @@ __all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_ru
 def read_run_settings(path) -> dict:
     """The settings stored in ``path``: a JSON object of Config fields (-> ``{"config": {...}}``), or a
     trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
-    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method`` and ``sequence`` (the
-    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir).
+    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method``, ``sequence`` (the
+    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir) and
+    ``machine`` (:func:`jaxvo.machine.record` of the machine that wrote it; older files lack it).
     Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
     """
     p = Path(path)
@@ -48,7 +50,7 @@ def read_run_settings(path) -> dict:
             if not line.startswith("#"):
                 break
             key, sep, value = line[1:].strip().partition(": ")
-            if sep and key in ("config", "track", "sequence", "seed"):
+            if sep and key in ("config", "track", "sequence", "seed", "machine"):
                 try:
                     found[key] = json.loads(value)
                 except json.JSONDecodeError as e:
@@ -84,8 +86,9 @@ def load_config(path=None, **overrides):
 
 def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> List[str]:
     """The ``#`` comment lines that start a trajectory file of :func:`run_sequence`: jaxvo's version,
-    method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`) and
-    the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
+    method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`), the
+    machine (:func:`jaxvo.machine.record`: on another CPU, core count or jaxlib the rerun may differ
+    at float rounding) and the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -94,7 +97,7 @@ def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> 
         v = "unknown"
     lines = [f"# jaxvo {v}: jaxvo run SEQUENCE --config THIS_FILE reproduces this trajectory",
              f"# method: {config.method}", f"# seed: {int(seed)}", f"# config: {config.to_json()}",
-             f"# track: {policy.to_json()}"]
+             f"# track: {policy.to_json()}", f"# machine: {json.dumps(machine.record())}"]
     if seq is not None:
         c = seq.camera
         info = {"path": str(seq.path), "reader": type(seq).__name__, "start": int(seq.start), "frames": len(seq),

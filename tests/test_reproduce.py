@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import jax
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -65,3 +66,56 @@ def test_config_file_errors_are_one_line(tmp_path):
     bad.write_text("# just a comment\n0 0 0 0 0 0 0 1\n")
     r = CliRunner().invoke(main, ["run", str(tmp_path), "--config", str(bad)])
     assert r.exit_code == 2 and r.output.startswith("error:") and "no '# config:" in r.output
+
+
+def test_header_records_the_machine_and_a_rerun_elsewhere_says_so(tmp_path):
+    """The header names what decides the floats (jaxvo.machine: CPU, usable cores, jax/jaxlib,
+    device); rerunning a file made on this machine prints no note and gives the same bytes,
+    one whose record differs gets a note that names each difference."""
+    import os
+
+    from jaxvo import machine
+    from jaxvo.camera import DEFAULT
+    from jaxvo.synthetic import generate
+
+    seq = tmp_path / "seq"
+    generate("seq1", seq, frames=3, seed=1, camera=DEFAULT.at_level(2))
+    first = tmp_path / "first.txt"
+    r = CliRunner().invoke(main, ["run", str(seq), "--out", str(first), "--method", "classic", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    rec = read_run_settings(first)["machine"]
+    assert rec == machine.record()
+    assert rec["cores"] == len(os.sched_getaffinity(0)) >= 1 and rec["jax"] == jax.__version__
+    again = tmp_path / "again.txt"
+    r = CliRunner().invoke(main, ["run", str(seq), "--config", str(first), "--out", str(again), "--no-progress"])
+    assert r.exit_code == 0 and "another machine" not in r.output
+    assert again.read_bytes() == first.read_bytes()
+
+    other = dict(rec, cores=rec["cores"] + 6, cpu="Some Other CPU")
+    lines = first.read_text().splitlines()
+    elsewhere = tmp_path / "elsewhere.txt"
+    elsewhere.write_text("\n".join(f"# machine: {json.dumps(other)}" if ln.startswith("# machine:") else ln
+                                   for ln in lines) + "\n")
+    r = CliRunner().invoke(main, ["run", str(seq), "--config", str(elsewhere), "--out", str(tmp_path / "t.txt"),
+                                  "--no-progress"])
+    assert r.exit_code == 0, r.output
+    note = [ln for ln in r.output.splitlines() if ln.startswith("note:")]
+    assert len(note) == 1 and f"cores: {rec['cores'] + 6} -> {rec['cores']}" in note[0]
+    assert f"cpu: Some Other CPU -> {rec['cpu']}" in note[0] and "jaxlib" not in note[0]
+    # a file from before this header line: no note; a malformed one: one error line
+    older = tmp_path / "older.txt"
+    older.write_text("\n".join(ln for ln in lines if not ln.startswith("# machine:")) + "\n")
+    r = CliRunner().invoke(main, ["run", str(seq), "--config", str(older), "--out", str(tmp_path / "o.txt"),
+                                  "--no-progress"])
+    assert r.exit_code == 0 and "note:" not in r.output
+    bad = tmp_path / "bad.txt"
+    bad.write_text("\n".join("# machine: [1, 2]" if ln.startswith("# machine:") else ln for ln in lines) + "\n")
+    r = CliRunner().invoke(main, ["run", str(seq), "--config", str(bad), "--out", str(tmp_path / "b.txt")])
+    assert r.exit_code == 2 and r.output.startswith("error:") and "'# machine:' header" in r.output
+
+
+def test_machine_differences_name_only_fields_both_records_have():
+    from jaxvo.machine import differences
+
+    assert differences({"cpu": "A", "cores": 2}, {"cpu": "A", "cores": 2}) == []
+    assert differences({"cpu": "A", "cores": 2, "gone": 1}, {"cpu": "B", "cores": 2, "new": 3}) == ["cpu: A -> B"]

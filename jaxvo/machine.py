@@ -1,0 +1,65 @@
+"""What a run was computed on, as far as it decides the floats of its result.
+
+The same seed, frames and settings give bitwise the same poses only where the compiled
+program and the way it runs are the same. Three things on the machine decide that:
+
+* jax / jaxlib (the compiler) and the backend (its device kind);
+* the CPU, whose instruction set and caches XLA's code and its matrix products are tuned for;
+* the number of cores the process may use: XLA's matrix products (the 7x7 normal equations
+  of every Gauss-Newton step, a sum over all pixels) split that sum across XLA's threads,
+  one per usable core, so another core count adds the pixels in another order. The pose then
+  differs at float rounding (1e-7 on one pair), and the robust steps of a tracked crowd can
+  grow that: Bonn crowd, 160 frames, seed 0, on one and on two cores of the same 2-core Xeon,
+  ATE 0.0194 and 0.0212 m (``taskset -c 0 jaxvo run ...`` against ``jaxvo run ...``).
+
+:func:`record` collects them; ``jaxvo run`` writes it into its trajectory header
+(``# machine: {...}``), and ``jaxvo run --config TRAJ`` names what differs (:func:`differences`)
+before it reruns a trajectory made elsewhere.
+"""
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+from typing import Dict, List, Mapping
+
+__all__ = ["record", "differences", "cpu_model", "usable_cores"]
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``; else :func:`platform.processor`)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS has one, e.g. under ``taskset``)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def record() -> Dict[str, object]:
+    """{"cpu", "cores", "jax", "jaxlib", "device"}: what decides a run's floats on this machine
+    (see the module docstring); "device" is the default backend's platform and device kind."""
+    import jax
+    import jaxlib
+
+    dev = jax.devices()[0]
+    return {"cpu": cpu_model(), "cores": usable_cores(), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+            "device": f"{dev.platform} ({dev.device_kind})"}
+
+
+def differences(recorded: Mapping, current: Mapping) -> List[str]:
+    """``"name: recorded -> current"`` for each field of ``recorded`` that ``current`` has
+    otherwise (fields only one of them has are left out: an older or newer header)."""
+    out = []
+    for name, value in recorded.items():
+        if name in current and current[name] != value:
+            out.append(f"{name}: {value} -> {current[name]}")
+    return out
