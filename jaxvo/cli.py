@@ -825,6 +825,9 @@ def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_p
     cov = info.get("coverage_mean")
     click.echo(f"wrote {info.get('frames', '?')} augmented frames of {real_seq.name} to {out}"
                + (f" (mean coverage {cov:.2f})" if isinstance(cov, float) else ""))
+    if info.get("frames_outside_groundtruth"):
+        click.echo(f"note: left out {info['frames_outside_groundtruth']} frames outside the ground truth's "
+                   f"time span (no pose to place the persons at)")
 
 
 # ----------------------------------------------------------------------------- demo

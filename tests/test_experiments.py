@@ -68,15 +68,35 @@ def test_table1_quick(tmp_path, cache):
         assert r["rpe1s_t"] is None  # 3 frames span < 1 s
 
 
-def test_table1_goes_on_past_a_sequence_it_cannot_augment(tmp_path, cache):
-    """fr3_long_office's ground truth starts after its first frame, so it cannot be augmented: the
-    script says so in its output and still writes the real rows (it stopped there before)."""
+def test_table1_augments_a_sequence_whose_ground_truth_starts_late(tmp_path, cache):
+    """fr3_long_office's ground truth starts 0.07 s after its first frame: the augmentation leaves
+    out the 2 frames it has no pose for (it could not augment the sequence at all before), and
+    the augmented rows are measured on as many frames as the real ones."""
     fr3 = data_root() / "tum" / "rgbd_dataset_freiburg3_long_office_household"
     _require(fr3)
     out = tmp_path / "table1.md"
     _script("table1").main([str(fr3), "--quick", "--methods", "classic", "--cache", str(cache), "--out", str(out)])
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["kind"], r["method"]) for r in data["rows"]] == [("real", "classic"), ("augmented", "classic")]
+    assert not data["not_augmented"]
+    aug = data["rows"][1]
+    assert aug["frames"] == data["rows"][0]["frames"] == 3 and aug["ate"] is not None
+
+
+def test_table1_goes_on_past_a_sequence_it_cannot_augment(tmp_path, cache, monkeypatch):
+    """A sequence the augmentation refuses is named in the output, and the real rows are still
+    written (the script stopped there once)."""
+    _require(STATIC)
+    table1 = _script("table1")
+
+    def refuse(real_dir, *args, **kwargs):
+        raise table1.common.datasets.DatasetError(f"{real_dir}/groundtruth.txt: no ground truth at any frame")
+
+    monkeypatch.setattr(table1.common, "augmented_sequence", refuse)
+    out = tmp_path / "table1.md"
+    table1.main([str(STATIC), "--quick", "--methods", "classic", "--cache", str(cache), "--out", str(out)])
     text = out.read_text()
-    assert "Not augmented: rgbd_dataset_freiburg3_long_office_household (cannot augment:" in text
+    assert f"Not augmented: {STATIC.name} (cannot augment:" in text
     data = json.loads(out.with_suffix(".json").read_text())
     assert [(r["kind"], r["method"]) for r in data["rows"]] == [("real", "classic")]
     assert data["not_augmented"] and "ground truth" in data["not_augmented"][0]

@@ -1,6 +1,7 @@
 """Tests of jaxvo.synthetic: exact geometry of renders, masks, determinism, augmentation."""
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -246,3 +247,22 @@ def test_augment_keeps_groundtruth_and_masks_changed_pixels(tmp_path):
         assert np.all((new_d[m] < real_d[m]) | (real_d[m] == 0)) and np.all(new_d[m] > 0)
         covs.append(m.mean())
     assert 0.1 < np.mean(covs) < 0.5
+
+
+def test_augment_leaves_out_frames_before_the_ground_truth(tmp_path):
+    """fr3_long_office starts recording 0.07 s before its motion capture: those frames have no
+    pose to place a person at, so the augmentation starts at the first covered frame and
+    max_frames still counts the frames written."""
+    fr3 = TUM_DESK.parent / "rgbd_dataset_freiburg3_long_office_household"
+    if not fr3.is_dir():
+        pytest.skip(f"real TUM data not found: {fr3}")
+    out = augment(fr3, tmp_path / "aug", persons=2, coverage=0.3, seed=0, max_frames=3)
+    rows = lambda p: [l.split() for l in p.read_text().splitlines() if l.strip() and not l.startswith("#")]
+    stamps = [float(r[0]) for r in rows(out / "rgb.txt")]
+    gt_start = min(float(r[0]) for r in rows(fr3 / "groundtruth.txt"))
+    first_real = float(rows(fr3 / "rgb.txt")[0][0])
+    assert len(stamps) == 3 and stamps[0] >= gt_start - 0.02 > first_real
+    info = json.loads((out / "info.json").read_text())
+    assert info["frames"] == 3 and info["frames_outside_groundtruth"] == 2
+    masks = [out / r[1] for r in rows(out / "masks.txt")]
+    assert len(masks) == 3 and all(cv2.imread(str(m), cv2.IMREAD_UNCHANGED).any() for m in masks)

@@ -134,7 +134,8 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
       persons: number of occluders K >= 1. coverage: target fraction of the image they cover
         together (calibrated on the first frame; actual coverage varies as they move and are
         hidden behind nearer real surfaces).
-      seed: textures, shapes and walking phases. max_frames: write only the first N associated frames.
+      seed: textures, shapes and walking phases. max_frames: use only the first N associated frames
+        (of which those outside the ground truth's time span are left out: they have no pose).
       camera: intrinsics (default: from the folder name, e.g. freiburg2 -> TUM_FR2), at the images' size.
       progress: ``progress(done, total)`` after each frame.
     Returns ``Path(out_dir)``. Output is deterministic for a given input and arguments.
@@ -150,12 +151,22 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
         raise DatasetError(f"{seq.groundtruth_path}: file not found (augment needs the real ground truth)")
     gt_t, gt_T = seq.groundtruth
     covered, frame_poses = seq.groundtruth_at_frames()
-    if not covered.all():
-        k = int(np.argmin(covered))
-        raise DatasetError(f"{seq.groundtruth_path}: no ground truth at frame {k} ({seq.timestamps[k]:.6f} s); "
-                           f"it covers {gt_t[0]:.6f} .. {gt_t[-1]:.6f}")
-    first, _ = seq.read_images(0)
-    H, W = first.shape[:2]
+    # TUM recordings often start a few frames before the motion capture (fr3 long_office by
+    # 0.07 s): a person cannot be placed in a frame without a pose, so those frames are left out
+    # and the augmentation starts at the first frame the ground truth covers (max_frames counts
+    # the frames written, so the sequence is reopened with as many more as were left out)
+    lead = int(np.argmax(covered)) if covered.any() else 0
+    if lead and max_frames is not None:
+        seq = TumSequence(src, camera=camera, max_frames=max_frames + lead)
+        gt_t, gt_T = seq.groundtruth
+        covered, frame_poses = seq.groundtruth_at_frames()
+    keep = np.flatnonzero(covered)[:max_frames]
+    if keep.size == 0:
+        raise DatasetError(f"{seq.groundtruth_path}: no ground truth at any of the {len(seq)} frames "
+                           f"({seq.timestamps[0]:.6f} .. {seq.timestamps[-1]:.6f} s); it covers "
+                           f"{gt_t[0]:.6f} .. {gt_t[-1]:.6f}")
+    rgb0, dep0 = seq.read_images(int(keep[0]))
+    H, W = rgb0.shape[:2]
     cam = seq.camera.with_size(W, H)
     stamps = [f"{t:.6f}" for t in seq.timestamps]
     dstamps = [f"{t:.6f}" for t in seq.depth_timestamps]
@@ -164,7 +175,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xA06, int(persons)]))
     down = _gravity_down(gt_T)
-    t0 = float(seq.timestamps[0])
+    t0 = float(seq.timestamps[keep[0]])
     # person sizes and initial distances from the coverage target
     kinds = ["cylinder" if k % 2 == 0 else "box" for k in range(persons)]
     widths = rng.uniform(0.45, 0.6, persons)
@@ -185,8 +196,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
                               name=f"person{k}"))
 
     # calibrate the distance on the first frame so the composited coverage is about `coverage`
-    rgb0, dep0 = seq.read_images(0)
-    T0 = frame_poses[0]
+    T0 = frame_poses[keep[0]]
     scale = 1.0
     for _ in range(4):
         for k, w in enumerate(walks):
@@ -204,7 +214,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
     for sub in ("rgb", "depth", "masks"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     rgb_entries, dep_entries, mask_entries, covs = [], [], [], []
-    for n in range(len(seq)):
+    for done, n in enumerate(keep, 1):
         rgb, dep = seq.read_images(n)
         t = float(seq.timestamps[n])
         occ = render(scene, cam, frame_poses[n], t)
@@ -220,7 +230,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
         mask_entries.append((stamps[n], f"masks/{stamps[n]}.png"))
         covs.append(float(win.mean()))
         if progress is not None:
-            progress(n + 1, len(seq))
+            progress(done, len(keep))
     desc = f"augmented from '{src.name}' by jaxvo.synthetic.augment ({persons} persons, seed {seed})"
     write_list(out / "rgb.txt", f"color images\n{desc}\ntimestamp filename", rgb_entries)
     write_list(out / "depth.txt", f"depth maps\n{desc}\ntimestamp filename", dep_entries)
@@ -228,7 +238,8 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
                "timestamp filename", mask_entries)
     shutil.copyfile(src / "groundtruth.txt", out / "groundtruth.txt")
     info = {"source": str(src.name), "persons": int(persons), "coverage_target": float(coverage),
-            "coverage_mean": float(np.mean(covs)), "seed": int(seed), "frames": len(seq),
+            "coverage_mean": float(np.mean(covs)), "seed": int(seed), "frames": int(keep.size),
+            "frames_outside_groundtruth": int(np.count_nonzero(~covered[:keep[-1] + 1])),
             "camera": {"fx": float(cam.fx), "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
                        "width": int(cam.width), "height": int(cam.height)},
             "distances_m": [round(w.distance, 4) for w in walks]}
