@@ -783,7 +783,8 @@ and depth with a per-pixel z-test, so the background keeps its real sensor noise
 camera keeps its real ground truth (groundtruth.txt is copied). OUT_DIR gets the TUM layout
 plus masks/ (255 = composited pixel), masks.txt and info.json (the real intrinsics, used by
 jaxvo run). --coverage is the target fraction of the image the persons cover (calibrated on
-the first frame).
+the first frame). Frames outside the ground truth's time span (TUM recordings often start a
+few frames before the motion capture) have no pose to place a person at: they are left out.
 
 {CONVENTIONS}
 """)
@@ -793,7 +794,7 @@ the first frame).
 @click.option("--coverage", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.3,
               show_default=True, help="Target fraction of the image covered by the occluders together.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of shapes, textures and paths.")
-@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Write only the first N frames.")
+@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Write only the first N frames (that the ground truth covers).")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Intrinsics of the real sequence. [default: from the folder name]")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
