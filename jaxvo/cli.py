@@ -633,7 +633,9 @@ to camera poses). EST is a TUM trajectory file (e.g. from jaxvo run).
 Prints a table of the relative pose error for pairs of estimate frames DELTA apart
 (translation in m, rotation in deg; per second with --delta-unit s, per frame with f;
 rmse, mean, median, max and the number of pairs) and the absolute trajectory error (m,
-after the least-squares rigid alignment of the estimate to the ground truth). Poses are
+after the least-squares rigid alignment of the estimate to the ground truth). With --delta
+and --delta-unit left at their defaults, an estimate shorter than 1 s is measured over 1
+frame instead, with a note (as jaxvo run does). Poses are
 associated by timestamp (nearest, within --max-dt s); ground truth that does not cover the
 estimate is an error.
 
@@ -669,7 +671,14 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
     for out, opt in ((json_file, "--json"), (plot_file, "--plot")):
         if out is not None:
             check_output(out, [groundtruth, est, masks_dir], force, opt)
-    res = evaluate(groundtruth, est, delta, delta_unit, max_dt, masks_dir, bonn)
+    ctx = click.get_current_context()
+    defaults = all(ctx.get_parameter_source(p) == click.core.ParameterSource.DEFAULT for p in ("delta", "delta_unit"))
+    res = evaluate(groundtruth, est, delta, delta_unit, max_dt, masks_dir, bonn, short_frames=defaults)
+    if (res["delta"], res["delta_unit"]) != (delta, delta_unit):
+        es = res["est"][0]
+        click.echo(f"note: {est} spans {es[-1] - es[0]:.2f} s, less than the default RPE delta of {delta:g} s: "
+                   f"RPE over 1 frame instead")
+        delta, delta_unit = res["delta"], res["delta_unit"]
     r, a, m = res["rpe"], res["ate"], res["masks"]
     u = "s" if delta_unit == "s" else "frame"
     dl = f"{delta:g} {'s' if delta_unit == 's' else 'frame(s)'}"

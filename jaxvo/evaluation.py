@@ -127,9 +127,13 @@ def load_groundtruth(path: Path, bonn: Optional[bool]):
 
 
 def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", max_dt: float = 0.02,
-             masks_dir=None, bonn: Optional[bool] = None, slack: float = 0.1) -> dict:
+             masks_dir=None, bonn: Optional[bool] = None, slack: float = 0.1, short_frames: bool = False) -> dict:
     """The numbers of ``jaxvo eval`` as a dict: ``rpe`` (RPEResult), ``ate`` (ATEResult),
-    ``masks`` (MaskScores or None), ``gt`` / ``est`` ((stamps, poses)), ``gt_file``.
+    ``masks`` (MaskScores or None), ``gt`` / ``est`` ((stamps, poses)), ``gt_file``, and
+    ``delta`` / ``delta_unit``: the spacing the RPE was taken over.
+
+    short_frames: an estimate that spans less than ``delta`` seconds is measured over 1 frame
+    instead (as ``jaxvo run`` does: a 14-frame excerpt has no pair 1 s apart), not refused.
 
     Raises DatasetError when the ground truth does not cover the estimate: an estimate pose
     more than ``max(max_dt, slack)`` s outside the ground truth's time span.
@@ -149,6 +153,8 @@ def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", m
         raise DatasetError(f"{gt_file}: ground truth ({gs[0]:.6f} .. {gs[-1]:.6f}) does not cover the estimate "
                            f"{est_path} ({es[0]:.6f} .. {es[-1]:.6f}): {outside} of {es.size} poses are more "
                            f"than {sl:g} s outside it")
+    if short_frames and delta_unit == "s" and es.size > 1 and es[-1] - es[0] < delta:
+        delta, delta_unit = 1.0, "f"
     try:
         r = rpe(gt[0], gt[1], es, eP, delta, delta_unit, max_dt)
     except ValueError as e:
@@ -170,4 +176,4 @@ def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", m
                                f"against (jaxvo synth and jaxvo augment write them)")
         masks, n_masks = score_masks(masks_dir, tm[0], tm[1], max_dt)
     return {"rpe": r, "ate": a, "masks": masks, "mask_frames": n_masks, "gt": gt, "est": (es, eP),
-            "gt_file": gt_file}
+            "gt_file": gt_file, "delta": delta, "delta_unit": delta_unit}

@@ -349,6 +349,14 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
     r = _invoke(["eval", synth_seq, traj, "--delta-unit", "f", "--masks-dir", masks])
     assert r.exit_code == 0, r.output
     assert "precision" in r.stdout and "recall" in r.stdout and f"({len(refs)} frames)" in r.stdout
+    # 6 frames span 0.17 s: with the delta left at its default (1 s) eval measures over 1 frame and
+    # says so, as jaxvo run does; a delta the user asked for is not changed behind their back
+    r2 = _invoke(["eval", synth_seq, traj, "--masks-dir", masks])
+    assert r2.exit_code == 0, r2.output
+    assert "less than the default RPE delta of 1 s: RPE over 1 frame instead" in r2.stdout
+    assert r2.stdout.split("\n", 1)[1] == r.stdout
+    r3 = _invoke(["eval", synth_seq, traj, "--delta", 1])
+    assert r3.exit_code != 0 and "try --delta-unit f" in r3.output
 
 
 # ----------------------------------------------------------------------------- demo
