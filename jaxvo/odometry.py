@@ -673,13 +673,22 @@ def _update_map(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
 
 
 @jax.jit
-def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params):
+def _cue_images(intensity, depth, max_depth):
+    return segmentation.cue_images(intensity, depth, max_depth)
+
+
+@jax.jit
+def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params,
+                       new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
     L = segmentation.propagate(L_old, old_md, new_md, T_old_new, camera, params)
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
-    return segmentation.coherent_regions(L, new_md, camera, params)
+    labels = segmentation.region_labels(new_md, camera)
+    moved = segmentation.motion_regions(*labels, new_cue, cue_view, T_cue_new, cue_camera, params)
+    L = jnp.where(moved & cue_ok & (new_md > 0), jnp.maximum(L, 2.0), L)
+    return segmentation.coherent_regions(L, new_md, camera, params, labels=labels)
 
 
-def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
+def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> threading.Thread:
     """Compile the segmentation's programs that the first pair runs after its estimate
     (:func:`_trust_ratios`, :func:`_unexplained`, :func:`_update_map`, :func:`_new_reference_map`
     with few views, and the stack of those views), in a background thread started at the first
@@ -692,8 +701,9 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
     yet, compile it themselves); an error here is left for that call to raise. Not a daemon
     thread: an interpreter that exits while XLA compiles in a daemon thread may crash.
 
-    L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; shape: the
-    frames' (H, W); camera: the map level's camera."""
+    L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; cue: a frame's
+    :func:`segmentation.cue_images`; shape: the frames' (H, W); camera, cue_camera: the map
+    level's and the cue level's camera."""
     def abstract(x, lead=()):
         return jax.ShapeDtypeStruct(lead + tuple(x.shape), x.dtype)
 
@@ -710,7 +720,9 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
         todo = [(_trust_ratios, (m, m, weights)) for m in masks]
         todo += [(_unexplained, (m, m, m, tuple(md.shape))) for m in masks]
         todo += [(_update_map, (Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera, params)),
-                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params))]
+                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params)
+                  + ((abstract(cue[0]), abstract(cue[1])),) * 2
+                  + (T, jax.ShapeDtypeStruct((), jnp.bool_), cue_camera))]
         for fn, args in todo:
             try:
                 fn.lower(*args).compile()
@@ -728,6 +740,9 @@ def _compile_map_programs(L, md, shape, camera, params) -> threading.Thread:
 # map update compiles at most twice (missing views are padding with valid = False)
 _VIEWS = 12
 _FEW_VIEWS = 4
+# how far back the view of the motion test (segmentation.motion_regions) may lie: 8 frames
+# (a quarter of a second) let a walking person move a few pixels at the test's level
+_CUE_BACK = 8
 
 
 class PairInputs(NamedTuple):
@@ -779,6 +794,8 @@ class Odometry:
         self.references: list = []
         self._frames: dict = {}         # index -> Frame that may still serve as reference
         self._depths: dict = {}         # index -> map-level depth, for the segmentation's votes
+        self._cues: dict = {}           # index -> cue-level (intensity, depth), for its motion test
+        self._cue_cam = camera.at_level(segmentation.CUE_LEVEL)
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
@@ -810,12 +827,14 @@ class Odometry:
         self._frames[j] = frame
         if self.policy.segment:
             self._depths[j] = _map_depth(_float32(frame.depth), self.config.max_depth)
+            self._cues[j] = _cue_images(_float32(frame.intensity), _float32(frame.depth), self.config.max_depth)
         if j == 0:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
-                self._compiling = _compile_map_programs(self._L, self._depths[0], tuple(frame.depth.shape),
-                                                        self._map_cam, self.params)
+                self._compiling = _compile_map_programs(self._L, self._depths[0], self._cues[0],
+                                                        tuple(frame.depth.shape), self._map_cam, self._cue_cam,
+                                                        self.params)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
@@ -1006,6 +1025,7 @@ class Odometry:
             del self._frames[old]
         for old in [i for i in self._depths if i < keep_depth]:
             del self._depths[old]
+            self._cues.pop(old, None)
         for d in (self._anchor, self._rel):   # estimates against the last references only
             for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap]:
                 del d[old]
@@ -1037,8 +1057,13 @@ class Odometry:
             Ts[k] = geometry.inverse(self._chain_pose(i)) @ T_world_new
             ok[k] = True
         T_old_new = (geometry.inverse(self._chain_pose(old)) @ T_world_new).astype(np.float32)
+        # the motion test's view: the earliest of the earlier voters at most _CUE_BACK frames back
+        back = [i for i in earlier if 0 < new - i <= _CUE_BACK and i in self._cues and (i == 0 or self.valid[i - 1])]
+        cue = self._cues[min(back)] if back else self._cues[new]
+        T_cue = (geometry.inverse(self._chain_pose(min(back))) @ T_world_new if back else np.eye(4)).astype(np.float32)
         self._L = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
-                                     self._map_cam, self.params)
+                                     self._map_cam, self.params, self._cues[new], cue, T_cue, np.bool_(bool(back)),
+                                     self._cue_cam)
 
     def _chain_pose(self, i: int) -> np.ndarray:
         """T_world_cam that frames estimated against frame i chain from: its anchor (fused and
