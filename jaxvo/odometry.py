@@ -743,6 +743,10 @@ _FEW_VIEWS = 4
 # how far back the view of the motion test (segmentation.motion_regions) may lie: 8 frames
 # (a quarter of a second) let a walking person move a few pixels at the test's level
 _CUE_BACK = 8
+# the test's shifts and regions are sized for 160x120 at its level (a 640x480 camera); on the
+# 80x60 of a 320x240 camera a region is a few dozen pixels, many of them mixed depths at its
+# edges, and it flagged parts of a static synthetic room at the true poses: there it is off
+_CUE_MIN_WIDTH = 160
 
 
 class PairInputs(NamedTuple):
@@ -1058,7 +1062,8 @@ class Odometry:
             ok[k] = True
         T_old_new = (geometry.inverse(self._chain_pose(old)) @ T_world_new).astype(np.float32)
         # the motion test's view: the earliest of the earlier voters at most _CUE_BACK frames back
-        back = [i for i in earlier if 0 < new - i <= _CUE_BACK and i in self._cues and (i == 0 or self.valid[i - 1])]
+        back = [i for i in earlier if 0 < new - i <= _CUE_BACK and i in self._cues and (i == 0 or self.valid[i - 1])
+                and self._cue_cam.width >= _CUE_MIN_WIDTH]
         cue = self._cues[min(back)] if back else self._cues[new]
         T_cue = (geometry.inverse(self._chain_pose(min(back))) @ T_world_new if back else np.eye(4)).astype(np.float32)
         self._L = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,

@@ -187,6 +187,64 @@ def test_coherent_regions_flag_the_whole_person(seq):
     assert false_pos < 0.05, false_pos
 
 
+@pytest.fixture(scope="module")
+def seq30():
+    """seq2 at 30 Hz: the person moves ~20 cm in 4 frames, a few pixels at the motion test's level."""
+    s = make_sequence("seq2", frames=5, seed=0, fps=30.0)
+    return s, {k: s.render(k) for k in (0, 4)}
+
+
+def test_motion_regions_flag_the_region_that_moved_and_not_the_room(seq30):
+    """The person's regions line up with a view 4 frames earlier only when shifted in the image,
+    the room's at the true pose: the test flags most of the person and almost none of the room;
+    a view that is the reference itself flags nothing, and motion_gain = inf turns it off."""
+    s, r = seq30
+    md = jnp.asarray(_md(r[4]))
+    labels = S.region_labels(md, MAP_CAM)
+    cue_cam = CAM.at_level(S.CUE_LEVEL)
+    ref_cue, view_cue = (S.cue_images(jnp.asarray(r[k].intensity), jnp.asarray(r[k].depth)) for k in (4, 0))
+    moving = _mask_md(r[4].moving_mask) & (np.asarray(md) > 0)
+    room = ~_mask_md(r[4].moving_mask) & (np.asarray(md) > 0)
+
+    def test(view, T, params=P):
+        return np.asarray(S.motion_regions(*labels, ref_cue, view, jnp.asarray(T), cue_cam, params)) & (np.asarray(md) > 0)
+
+    flagged = test(view_cue, _T(s, 0, 4))
+    assert flagged.shape == md.shape
+    assert (flagged & moving).sum() / moving.sum() > 0.9
+    assert (flagged & room).sum() / room.sum() < 0.02
+    assert not test(ref_cue, np.eye(4, dtype=np.float32)).any()
+    assert not test(view_cue, _T(s, 0, 4), P._replace(motion_gain=float("inf"))).any()
+
+
+def test_odometry_flags_the_person_with_the_motion_test():
+    """At 640x480 the odometry's map takes in the motion test at each new reference: on seq2's
+    first 12 frames the person is wholly untrusted from frame 9 on (the view 8 frames back
+    exists), while free space and appearance alone leave two thirds of it trusted."""
+    s = make_sequence("seq2", frames=12, seed=0)
+    rs = [s.render(k) for k in range(12)]
+
+    def recall(params):
+        odo = Odometry(CAM, Config(), jax.random.key(0), segment_params=params)
+        steps = [odo.add(r.frame()) for r in rs]
+        return [(~st.static_mask & rs[st.reference].moving_mask).sum() / rs[st.reference].moving_mask.sum()
+                for st in steps[9:]]
+
+    assert min(recall(P)) > 0.9
+    assert max(recall(P._replace(motion_gain=float("inf")))) < 0.6
+
+
+def test_region_labels_are_the_ones_coherent_regions_decide_on(seq):
+    """coherent_regions with the labels passed in gives what it gives computing them itself."""
+    s, r = seq
+    md = jnp.asarray(_md(r[0]))
+    L = jnp.where(jnp.asarray(_mask_md(r[0].moving_mask)), 4.0, P.prior).astype(jnp.float32)
+    lab, k = S.region_labels(md, MAP_CAM)
+    assert lab.shape == md.shape and lab.dtype == jnp.int32 and int(lab.max()) < k
+    np.testing.assert_array_equal(np.asarray(S.coherent_regions(L, md, MAP_CAM, P, labels=(lab, k))),
+                                  np.asarray(S.coherent_regions(L, md, MAP_CAM, P)))
+
+
 def test_upsample_and_weight():
     L = jnp.asarray([[0.0, 10.0], [-10.0, 0.0]])
     w = np.asarray(S.upsample(S.static_weight(L), (5, 4)))
