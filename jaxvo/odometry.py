@@ -639,8 +639,11 @@ def _rigid(T) -> np.ndarray:
 
 
 @jax.jit
-def _map_depth(depth, max_depth):
-    return segmentation.map_depth(depth, max_depth)
+def _map_inputs(intensity, depth, max_depth):
+    """A frame's inputs of the segmentation, one program: (map-level depth (votes, propagation,
+    regions), cue-level (intensity, depth) for the motion test). The cue level is one halving
+    below the map level, and XLA shares the depth's first halving between the two."""
+    return segmentation.map_depth(depth, max_depth), segmentation.cue_images(intensity, depth, max_depth)
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
@@ -670,11 +673,6 @@ def _unexplained(inlier_mask, valid_mask, occluded_mask, shape):
 @jax.jit
 def _update_map(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
     return segmentation.add_current_vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params)
-
-
-@jax.jit
-def _cue_images(intensity, depth, max_depth):
-    return segmentation.cue_images(intensity, depth, max_depth)
 
 
 @jax.jit
@@ -830,8 +828,8 @@ class Odometry:
         j = len(self.poses)
         self._frames[j] = frame
         if self.policy.segment:
-            self._depths[j] = _map_depth(_float32(frame.depth), self.config.max_depth)
-            self._cues[j] = _cue_images(_float32(frame.intensity), _float32(frame.depth), self.config.max_depth)
+            self._depths[j], self._cues[j] = _map_inputs(_float32(frame.intensity), _float32(frame.depth),
+                                                         self.config.max_depth)
         if j == 0:
             self.poses.append(self._first)
             if self.policy.segment:

@@ -294,7 +294,7 @@ def test_odometry_compiles_once(frames320):
 
 def _jitted():
     from jaxvo import odometry as O
-    return [O._map_depth, O._trust, O._trust_ratios, O._unexplained, O._update_map, O._new_reference_map]
+    return [O._map_inputs, O._trust, O._trust_ratios, O._unexplained, O._update_map, O._new_reference_map]
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
