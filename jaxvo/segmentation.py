@@ -149,17 +149,23 @@ def _points(depth, camera: Camera):
     return backproject_planes(camera, u, v, depth)
 
 
-def _transfer(ref_depth, T_view_ref, camera: Camera):
-    """Reference pixels moved into a view: (z in the view, pixel index (flat), inside (bool)), each (h, w)."""
-    h, w = ref_depth.shape
-    X, Y, Z = _points(ref_depth, camera)
+def _projected(points, T_view_ref, camera: Camera):
+    """3-D points (X, Y, Z planes, reference camera) moved into a view and projected:
+    (u, v, z) planes, float pixel coordinates and depth in the view (z <= 0.1 m projects as if at 1 m)."""
+    X, Y, Z = points
     T = T_view_ref
     x = T[0, 0] * X + T[0, 1] * Y + T[0, 2] * Z + T[0, 3]
     y = T[1, 0] * X + T[1, 1] * Y + T[1, 2] * Z + T[1, 3]
     z = T[2, 0] * X + T[2, 1] * Y + T[2, 2] * Z + T[2, 3]
     zs = jnp.where(z > 0.1, z, 1.0)
-    u = jnp.round(camera.fx * x / zs + camera.cx)
-    v = jnp.round(camera.fy * y / zs + camera.cy)
+    return camera.fx * x / zs + camera.cx, camera.fy * y / zs + camera.cy, z
+
+
+def _transfer(ref_depth, T_view_ref, camera: Camera):
+    """Reference pixels moved into a view: (z in the view, pixel index (flat), inside (bool)), each (h, w)."""
+    h, w = ref_depth.shape
+    u, v, z = _projected(_points(ref_depth, camera), T_view_ref, camera)
+    u, v = jnp.round(u), jnp.round(v)
     inside = (ref_depth > 0) & (z > 0.1) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     idx = jnp.clip(v, 0, h - 1).astype(jnp.int32) * w + jnp.clip(u, 0, w - 1).astype(jnp.int32)
     return z, idx, inside
@@ -327,15 +333,9 @@ def motion_regions(labels, k: int, ref_cue, view_cue, T_view_ref, camera: Camera
     hc, wc = ref_depth.shape
     st = _CUE_STRIDE
     lab = labels[: 2 * hc: 2, : 2 * wc: 2][::st, ::st].reshape(-1)
-    X, Y, Z = (c[::st, ::st] for c in _points(ref_depth, camera))
+    u0, v0, z = (c.reshape(-1) for c in _projected(tuple(c[::st, ::st] for c in _points(ref_depth, camera)),
+                                                    T_view_ref, camera))
     ref_int, ref_depth = ref_int[::st, ::st], ref_depth[::st, ::st]
-    T = T_view_ref
-    x = T[0, 0] * X + T[0, 1] * Y + T[0, 2] * Z + T[0, 3]
-    y = T[1, 0] * X + T[1, 1] * Y + T[1, 2] * Z + T[1, 3]
-    z = (T[2, 0] * X + T[2, 1] * Y + T[2, 2] * Z + T[2, 3]).reshape(-1)
-    zs = jnp.where(z > 0.1, z, 1.0)
-    u0 = camera.fx * x.reshape(-1) / zs + camera.cx
-    v0 = camera.fy * y.reshape(-1) / zs + camera.cy
     shifts = jnp.asarray(_SHIFTS, jnp.float32)                       # (S, 2)
     u = (u0[None, :] + shifts[:, :1]).reshape(-1)
     v = (v0[None, :] + shifts[:, 1:]).reshape(-1)
