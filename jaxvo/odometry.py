@@ -647,8 +647,8 @@ def _map_inputs(intensity, depth, max_depth):
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
-def _trust(L, shape):
-    return segmentation.upsample(segmentation.static_weight(L), shape)
+def _trust(L, flags, shape):
+    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags)), shape)
 
 
 @jax.jit
@@ -682,8 +682,7 @@ def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, 
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
     labels = segmentation.region_labels(new_md, camera)
     moved = segmentation.motion_regions(*labels, new_cue, cue_view, T_cue_new, cue_camera, params)
-    L = jnp.where(moved & cue_ok & (new_md > 0), jnp.maximum(L, 2.0), L)
-    return segmentation.coherent_regions(L, new_md, camera, params, labels=labels)
+    return segmentation.reference_map(L, new_md, labels, moved & cue_ok, params)
 
 
 def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> threading.Thread:
@@ -712,7 +711,7 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         # the estimate's masks: committed to the device where they come from an exported program
         # (jaxvo.aot), not where they come from the jit; another sharding is another compilation
         shardings = (None, aot.sharding())
-        weights = jax.eval_shape(_trust, Lz, shape)
+        weights = jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
         todo = [(_trust_ratios, (m, m, weights)) for m in masks]
@@ -801,7 +800,8 @@ class Odometry:
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
-        self._L = None                  # dynamic log-odds of the reference, map level
+        self._L = None                  # dynamic log-odds of the reference, map level (the evidence)
+        self._flags = None              # its regions flagged dynamic while it is the reference
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
         self._compiling = None          # the thread compiling the segmentation's programs ahead
 
@@ -834,13 +834,14 @@ class Odometry:
             self.poses.append(self._first)
             if self.policy.segment:
                 self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
+                self._flags = jnp.zeros(self._depths[0].shape, bool)
                 self._compiling = _compile_map_programs(self._L, self._depths[0], self._cues[0],
                                                         tuple(frame.depth.shape), self._map_cam, self._cue_cam,
                                                         self.params)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
-        trust = _trust(self._L, tuple(frame.depth.shape)) if self.policy.segment else None
+        trust = _trust(self._L, self._flags, tuple(frame.depth.shape)) if self.policy.segment else None
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
         # and leaving them out costs accuracy (fr2_desk 0.0185 against 0.0179 m/s)
         weights = None if self._calm else trust
@@ -997,7 +998,7 @@ class Odometry:
         if not self.policy.fuse or parent == old or new <= old:
             return pose
         T_world_old = self._chain_pose(old)
-        weights = _trust(self._L, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
+        weights = _trust(self._L, self._flags, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
         _, T, _, _, valid, _ = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
                                               weights)
@@ -1064,7 +1065,7 @@ class Odometry:
                 and self._cue_cam.width >= _CUE_MIN_WIDTH]
         cue = self._cues[min(back)] if back else self._cues[new]
         T_cue = (geometry.inverse(self._chain_pose(min(back))) @ T_world_new if back else np.eye(4)).astype(np.float32)
-        self._L = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
+        self._L, self._flags = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
                                      self._map_cam, self.params, self._cues[new], cue, T_cue, np.bool_(bool(back)),
                                      self._cue_cam)
 

@@ -245,6 +245,35 @@ def test_region_labels_are_the_ones_coherent_regions_decide_on(seq):
                                   np.asarray(S.coherent_regions(L, md, MAP_CAM, P)))
 
 
+def test_reference_map_flags_regions_for_the_trust_but_carries_only_the_evidence(seq):
+    """A new reference's region decisions (the moving regions and the coherent ones) raise its
+    trust to +2 while it is the reference; the evidence it carries on holds the moving regions
+    at ``motion_vote`` only and nothing of what coherence alone flagged, so a region decision
+    over a mixed region does not spread into the next reference's regions."""
+    s, r = seq
+    md = jnp.asarray(_md(r[0]))
+    moving = _mask_md(r[0].moving_mask) & (np.asarray(md) > 0)
+    cols = np.where(moving.any(axis=0))[0]
+    strip = moving.copy()
+    strip[:, : cols[-1] - (cols[-1] - cols[0]) // 3] = False
+    L = jnp.asarray(np.where(strip, 4.0, P.prior).astype(np.float32))
+    labels = S.region_labels(md, MAP_CAM)
+    none = jnp.zeros(md.shape, bool)
+    evidence, flags = S.reference_map(L, md, labels, none, P)
+    np.testing.assert_array_equal(np.asarray(evidence), np.asarray(L))
+    np.testing.assert_array_equal(np.asarray(S.flagged(L, flags)), np.asarray(S.coherent_regions(L, md, MAP_CAM, P)))
+    assert (np.asarray(flags) & moving).sum() > 0.8 * moving.sum()
+    # the motion test's regions: flagged, and carried at motion_vote (over the prior of -1)
+    moved = jnp.asarray(moving)
+    evidence, flags = S.reference_map(L, md, labels, moved, P)
+    ev = np.asarray(evidence)
+    np.testing.assert_array_equal(ev[moving & ~strip], P.motion_vote)
+    np.testing.assert_array_equal(ev[strip], 4.0)
+    np.testing.assert_array_equal(ev[~moving], np.asarray(L)[~moving])
+    assert np.asarray(flags)[moving].all()
+    assert (np.asarray(S.flagged(evidence, flags))[moving] >= 2.0).all()
+
+
 def test_upsample_and_weight():
     L = jnp.asarray([[0.0, 10.0], [-10.0, 0.0]])
     w = np.asarray(S.upsample(S.static_weight(L), (5, 4)))
