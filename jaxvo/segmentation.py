@@ -425,8 +425,10 @@ def reference_map(L, depth, labels, moved, params: SegmentParams):
     reference could flag more of the static scene around a person, and static votes undo +2
     only slowly (8 views; behind a person few views see it). On fr2_desk with two synthetic
     persons the moving mask's precision / recall went from 0.779 / 0.797 to 0.794 / 0.790 on
-    seeds 0-11 and from 0.769 / 0.816 to 0.792 / 0.837 on seeds 12-23; Bonn crowd's
-    trajectory stayed within its seed spread (scratch runs, issue 10 notes).
+    seeds 0-11 and from 0.769 / 0.816 to 0.792 / 0.837 on seeds 12-23, held out of the choice;
+    Bonn crowd's trajectory stayed within its seed spread (``experiments/results/``
+    ``augmented_default.md``, ``augmented_heldout.md``, ``bonn_default.md`` against the same
+    commands at commit 9bb7e7a; README "The default tracking").
     """
     valid = depth > 0
     moved = moved & valid
