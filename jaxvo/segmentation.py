@@ -31,7 +31,7 @@ pyramid level 1 (half resolution). It is
 
 The region decisions (moving and coherent regions) raise the reference's trust
 while it is the reference; what is carried on is the per-pixel evidence, with
-the moving regions at a weak ``motion_vote`` (:func:`reference_map` says why).
+the moving regions at ``motion_vote`` (+2 by default; :func:`reference_map` says why).
 
 The trust passed to :func:`jaxvo.odometry.estimate_motion` (``weights=``) is
 ``static_weight(flagged(L, flags))``, sigmoid(-L) with L raised by the flags:
@@ -384,8 +384,7 @@ def coherent_regions(L, depth, camera: Camera, params: SegmentParams, clusters: 
 
     labels: ``(labels, k)`` of :func:`region_labels` where the caller has them already.
     """
-    flag = coherent_flags(L, depth, camera, params, clusters, iterations, stride, labels)
-    return jnp.where(flag, jnp.maximum(L, 2.0), L)
+    return flagged(L, coherent_flags(L, depth, camera, params, clusters, iterations, stride, labels))
 
 
 def coherent_flags(L, depth, camera: Camera, params: SegmentParams, clusters: int = 24, iterations: int = 8,
