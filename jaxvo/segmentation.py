@@ -23,7 +23,9 @@ pyramid level 1 (half resolution). It is
   region that lines up with a view up to 8 frames back only when shifted in the
   image moved between the two, whatever its texture and whether or not it
   vacated space (the free-space votes see a person walking along the line of
-  sight, or sideways in front of a near wall, only along a thin strip);
+  sight, or sideways in front of a near wall, only along a thin strip); a reference with no
+  such view at least 3 frames back (the first ones) is tested once more against the frame 3
+  frames after it (:class:`jaxvo.odometry.Odometry`);
 * made coherent per region (:func:`coherent_flags`): the reference's 3-D points
   are grouped by k-means (as Joint-VO-SF / StaticFusion do), and a group whose
   pixels are mostly dynamic is flagged as a whole, so a person is flagged as a
