@@ -161,7 +161,8 @@ def test_open3d_missing_is_a_clear_error(monkeypatch):
 
 @pytest.mark.parametrize("term", ["color", "hybrid"])
 def test_open3d_matches_ground_truth(seq, term):
-    pytest.importorskip("open3d")
+    # not pytest.importorskip: since pytest 9 it skips only a missing module, and an installed
+    # open3d whose system library is missing (libusb) raises an ImportError that would fail here
     if not peers.open3d_available():
         pytest.skip(f"open3d does not import: {peers._open3d_import()[1]}")
     odo = peers.Open3DOdometry(TUM_FR2, term, max_depth=4.0)

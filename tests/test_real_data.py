@@ -119,3 +119,39 @@ def test_bonn_crowd_pairs_six_frames_apart(bonn_crowd):
         med[method], rmse[method] = np.median(t), np.sqrt(np.mean(t ** 2))
     assert med["ransac"] < 0.35 * med["classic"], med
     assert rmse["ransac"] < rmse["classic"], rmse
+
+
+def test_fr2_desk_with_persons_default_flags_them_and_beats_pairwise_ransac(fr2_desk, tmp_path):
+    """The real fr2_desk's first 30 frames with two synthetic persons walking in front of the
+    desk (``jaxvo augment``, seeds 3 and 6: exact moving masks, real ground truth and sensor
+    noise). The default tracking's moving mask (jaxvo.mapping.moving_mask on each reference)
+    covers the persons and little else, and its trajectory beats the paper's frame-to-frame
+    RANSAC. Measured 2026-11-26: pooled precision / recall 0.87 / 0.84 (0.88 / 0.85, 0.85 /
+    0.84), ATE 4.4 and 6.4 mm against RANSAC's 15.4 and 11.2 mm."""
+    from jaxvo import metrics
+    from jaxvo.mapping import load_mask, moving_mask, read_moving_masks
+    from jaxvo.odometry import TrackConfig, track
+    from jaxvo.synthetic import augment
+
+    counts = np.zeros(3)          # true positives, false positives, false negatives
+    for seed in (3, 6):
+        folder = augment(fr2_desk.path, tmp_path / f"aug{seed}", persons=2, coverage=0.3, seed=seed, max_frames=30)
+        seq = TumSequence(folder)
+        cam = seq.camera
+        stamps, paths = read_moving_masks(folder)
+        truth = [load_mask(paths[int(np.argmin(np.abs(stamps - t)))], (cam.height, cam.width)) for t in seq.timestamps]
+
+        def score(step):
+            pred, decided = moving_mask(step.estimate, cam.width, cam.height, step.static_mask, valid_too=True)
+            t = truth[step.reference]
+            counts[:] += [(pred & t & decided).sum(), (pred & ~t & decided).sum(), (~pred & t & decided).sum()]
+
+        frames = [seq.frame(i) for i in range(len(seq))]
+        default = track(frames, cam, Config(), jax.random.key(seed), callback=score)
+        pairwise = track(frames, cam, Config(), jax.random.key(seed), policy=TrackConfig.frame_to_frame())
+        covered, T_world_cam = seq.groundtruth_at_frames()
+        ts = np.asarray(seq.timestamps)
+        ate = [metrics.ate(ts[covered], T_world_cam[covered], ts, tr.poses).rmse for tr in (default, pairwise)]
+        assert ate[0] < 0.8 * ate[1], (seed, ate)
+    tp, fp, fn = counts
+    assert tp / (tp + fp) > 0.75 and tp / (tp + fn) > 0.7, counts
