@@ -401,13 +401,28 @@ def test_frame_to_frame_policy_has_no_segmentation(frames320):
 
 
 @pytest.mark.parametrize("exported", [False, True])
-def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, exported):
+def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, exported, monkeypatch):
     """The segmentation's programs compiled in the background from the first frame have the
     signatures of the later calls: those calls compile nothing (a mismatch, e.g. a dtype or a
     sharding, would compile every program twice, once for nothing). Through the exported
     estimator (jaxvo.aot, as the CLI runs it), whose outputs are committed to the device, the
-    estimator compiles once although its weights are the map's on some frames and none on others."""
+    estimator compiles once although its weights are the map's on some frames and none on others.
+    The motion tests are let run at this small size, so that the first reference's later test
+    is among the calls."""
     from jaxvo import aot
+    from jaxvo import odometry as O
+    monkeypatch.setattr(O, "_CUE_MIN_WIDTH", 0)
+    later = []
+
+    class Spy:   # counts the calls; the background thread still finds the program's .lower
+        def __init__(self, fn):
+            self.fn, self.lower = fn, fn.lower
+
+        def __call__(self, *args):
+            later.append(1)
+            return self.fn(*args)
+
+    monkeypatch.setattr(O, "_later_motion_test", Spy(O._later_motion_test))
     cam = Camera(150.0, 150.0, 95.5, 71.5, 192, 144)   # an image size no other test compiles for
     s = make_sequence("seq3", frames=8, seed=1, camera=cam)
     frames = [s.render(k).frame() for k in range(len(s))]
@@ -417,7 +432,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
         aot.enable(tmp_path / "exported" if exported else None)
         odo.add(frames[0])
         odo._compiling.join()
-        names = ("_trust_ratios", "_unexplained", "_update_map", "_new_reference_map")
+        names = ("_trust_ratios", "_unexplained", "_update_map", "_new_reference_map", "_later_motion_test")
         with jax.log_compiles(True), caplog.at_level("DEBUG", logger="jax"):
             steps = []
             for f in frames[1:]:
@@ -435,3 +450,4 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
                 if r.getMessage().startswith("Compiling jit(stack)") and r.getMessage().count(md_shape) == 4]
     assert len({st.reference for st in steps}) >= 2                     # a new reference map was made
     assert True in calm and False in calm, calm
+    assert later, "the later motion test did not run"
