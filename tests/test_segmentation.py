@@ -217,6 +217,23 @@ def test_motion_regions_flag_the_region_that_moved_and_not_the_room(seq30):
     assert not test(view_cue, _T(s, 0, 4), P._replace(motion_gain=float("inf"))).any()
 
 
+@pytest.mark.parametrize("exposure", [lambda i: i + 25.0, lambda i: i * 1.25], ids=["plus25", "times1.25"])
+def test_motion_regions_take_an_exposure_change_for_no_motion(seq30, exposure):
+    """The view 25 grey levels (or 25 %) brighter, as a camera's auto exposure makes it: the
+    room still lines up best in place and stays unflagged, the person is still flagged.
+    Without the regions' in-place offset removed, 24 % (45 %) of the room was flagged."""
+    s, r = seq30
+    md = jnp.asarray(_md(r[4]))
+    labels = S.region_labels(md, MAP_CAM)
+    ref_cue, (view_int, view_depth) = (S.cue_images(jnp.asarray(r[k].intensity), jnp.asarray(r[k].depth)) for k in (4, 0))
+    flagged = np.asarray(S.motion_regions(*labels, ref_cue, (exposure(view_int), view_depth), jnp.asarray(_T(s, 0, 4)),
+                                          CAM.at_level(S.CUE_LEVEL), P)) & (np.asarray(md) > 0)
+    moving = _mask_md(r[4].moving_mask) & (np.asarray(md) > 0)
+    room = ~_mask_md(r[4].moving_mask) & (np.asarray(md) > 0)
+    assert (flagged & moving).sum() / moving.sum() > 0.9
+    assert (flagged & room).sum() / room.sum() < 0.02
+
+
 def test_odometry_flags_the_person_with_the_motion_test():
     """At 640x480 the odometry's map takes in the motion test at each new reference: on seq2's
     first 12 frames the person is wholly untrusted from frame 9 on (the view 8 frames back
