@@ -341,9 +341,12 @@ def motion_regions(labels, k: int, ref_cue, view_cue, T_view_ref, camera: Camera
     at every shift: without it a change of exposure between the view and the reference let a
     shift onto brighter or darker surroundings win, and on the real Bonn crowd frames the test
     flagged much of the white back wall around the persons (`experiments/figures.py`'s map
-    39.6 % moving, 24.0 % with the test off, 27.4 % with the offset taken off). Taking off each
-    shift's own offset instead cleared the wall as well but flagged more of fr2_desk's static
-    low-texture surfaces (augmented pooled precision 0.786 against 0.810; issue 10 notes).
+    39.6 % moving, 24.0 % with the test off, 27.4 % with the offset taken off). Per region,
+    because exposure shifts bright and dark surfaces by different amounts: one offset for the
+    whole view, the median as :mod:`jaxvo.brightness` fits it for the estimate, left much of
+    the wall flagged (34.2 %). Taking off each shift's own offset instead cleared the wall as
+    well but flagged more of fr2_desk's static low-texture surfaces (augmented pooled
+    precision 0.786 against 0.810; scratch measurements, issue 10 notes).
 
     labels, k: :func:`region_labels` of the reference at the map level (h, w).
     ref_cue, view_cue: (intensity, depth) at :data:`CUE_LEVEL` (:func:`cue_images`), (h/2, w/2).
