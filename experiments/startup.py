@@ -80,7 +80,7 @@ def run_once(seq: Path, method: str, folder: Path, out: Path) -> dict:
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=common._REPO)
     wall = time.perf_counter() - t
     if r.returncode != 0:
-        raise SystemExit(f"error: {' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
+        raise SystemExit(f"error: {' '.join(cmd)} failed (exit status {r.returncode}):\n{r.stderr[-2000:]}")
     m = re.search(r"^compile\s+([0-9.]+) s", r.stdout + r.stderr, re.M)
     return {"first_pair_s": float(m.group(1)) if m else float("nan"), "process_s": wall}
 
