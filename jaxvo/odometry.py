@@ -652,13 +652,16 @@ def _trust(L, flags, shape):
 
 
 @jax.jit
-def _trust_ratios(inlier_mask, valid_mask, weights):
+def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
     """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
-    fraction of the valid reference pixels it does not trust)."""
+    fraction of the valid reference pixels it does not trust, fraction of them it trusts and
+    the current frame does not hide (``occluded_mask``), inlier ratio over those)."""
     trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
-    valid, inl_trusted, valid_trusted, valid_untrusted = _pixel_counts(
-        valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted)
-    return inl_trusted / jnp.maximum(valid_trusted, 1), valid_untrusted / jnp.maximum(valid, 1)
+    seen = valid_mask & trusted & ~occluded_mask
+    valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = _pixel_counts(
+        valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted, seen, inlier_mask & seen)
+    return (inl_trusted / jnp.maximum(valid_trusted, 1), valid_untrusted / jnp.maximum(valid, 1),
+            n_seen / jnp.maximum(valid, 1), inl_seen / jnp.maximum(n_seen, 1))
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
@@ -729,7 +732,7 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         weights = jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
-        todo = [(_trust_ratios, (m, m, weights)) for m in masks]
+        todo = [(_trust_ratios, (m, m, m, weights)) for m in masks]
         todo += [(_unexplained, (m, m, m, tuple(md.shape))) for m in masks]
         todo += [(_update_map, (Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera, params)),
                  (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params)
@@ -991,8 +994,14 @@ class Odometry:
         without the segmentation)."""
         policy = self.policy
         if policy.segment:
-            T, ratio, ok, (ratio_static, dynamic) = jax.device_get(   # one transfer
-                (est.T_cur_ref, est.inlier_ratio, est.valid, _trust_ratios(est.inlier_mask, est.valid_mask, weights)))
+            occluded = jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
+            T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
+                (est.T_cur_ref, est.inlier_ratio, est.valid,
+                 _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))
+            # TrackConfig.rescue: RANSAC's flag counts every pixel, and where people cover most of
+            # the reference and stand in front of the rest, a right estimate fails it
+            if not ok and policy.rescue > 0 and self.config.method == "ransac":
+                ok = seen >= policy.rescue_support and ratio_seen >= policy.rescue
         else:
             T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
             ratio_static, dynamic = ratio, 1.0

@@ -211,3 +211,41 @@ def test_reference_restarts_after_restart_failed_frames(noisy_estimator, monkeyp
     assert not odo.valid[j - 3 - 1]             # the new reference is a failed (held) frame
     with pytest.raises(ValueError, match="restart"):
         TrackConfig.keyframes(6, restart=5).validate()
+
+
+def test_a_failed_ransac_estimate_is_rescued_by_the_trusted_pixels_it_still_sees(monkeypatch):
+    """Every estimate is right but RANSAC's flag fails it, as where people cover half of the
+    reference and stand in front of the rest: three quarters of the reference hidden in the
+    current frame (``occluded_mask``), every pixel still seen an inlier. ``TrackConfig.rescue``
+    keeps them and the track follows the camera; with nothing hidden (the same inliers are then
+    a quarter of what the frame sees), with ``rescue`` 0 or with classic, the frames are held."""
+    n = 12
+    truth = _truth(n)
+    h, w = CAM.height, CAM.width
+    hidden = np.zeros((h, w), bool)
+    hidden[:, : 3 * w // 4] = True
+
+    def fake_with(occluded):
+        def fake(ref, cur, camera, config, key, init=None, weights=None):
+            r, c = int(ref.intensity[0, 0]), int(cur.intensity[0, 0])
+            T = geometry.inverse(truth[c]) @ truth[r]
+            ones = np.ones((h, w), bool)
+            return MotionEstimate(T.astype(np.float32), np.zeros(6), ~hidden, ones, 0.25, 0, 0, False, np.eye(6), 1.0,
+                                  occluded)
+        return fake
+
+    def run(occluded, policy=TrackConfig(), config=O.Config()):
+        monkeypatch.setattr(O, "estimate_motion", fake_with(occluded))
+        odo = Odometry(CAM, config, policy=policy)
+        for f in _frames(n):
+            odo.add(f)
+        return odo
+
+    odo = run(hidden)
+    assert all(odo.valid)
+    E = geometry.inverse(truth[-1]) @ odo.poses[-1]
+    assert np.linalg.norm(E[:3, 3]) < 1e-4
+    assert not any(run(np.zeros((h, w), bool)).valid)
+    assert not any(run(hidden, TrackConfig(rescue=0.0)).valid)
+    assert not any(run(hidden, config=O.Config(method="classic")).valid)
+    assert TrackConfig().rescue > 0
