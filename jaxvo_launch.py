@@ -16,10 +16,10 @@ def _quit_while_starting(signum, frame):
 
 def main():
     signal.signal(signal.SIGINT, _quit_while_starting)
-    from jaxvo.cli import main as cli
+    from jaxvo.cli import entry
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    return cli()
+    entry()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,5 +1,5 @@
 """``python -m jaxvo ...`` is the same as the ``jaxvo`` command."""
-from jaxvo.cli import main
+from jaxvo.cli import entry
 
 if __name__ == "__main__":
-    main(prog_name="jaxvo")
+    entry(prog_name="jaxvo")

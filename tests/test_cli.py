@@ -391,3 +391,14 @@ def test_keyframe_options(tmp_path, synth_seq):
     assert r.exit_code == 0, r.output
     # references 0 (frames 1-3) then 2 (frames 4-5): one mask per reference, on its pixels
     assert len(list(masks.glob("*.png"))) == 2
+
+
+@pytest.mark.parametrize("args, code, text", [(["--version"], 0, "jaxvo, version"),
+                                              (["run", "/nonexistent-jaxvo-seq"], 2, "error: /nonexistent-jaxvo-seq")])
+def test_the_process_entry_leaves_with_the_commands_status_and_its_output_flushed(args, code, text):
+    """``python -m jaxvo`` ends in :func:`jaxvo.cli.entry`, which leaves with ``os._exit`` (the
+    interpreter's teardown could abort while XLA's threads are busy): the command's exit status
+    and everything it printed still come out."""
+    r = subprocess.run([sys.executable, "-m", "jaxvo", *args], capture_output=True, text=True, timeout=120)
+    assert r.returncode == code
+    assert text in r.stdout + r.stderr
