@@ -651,6 +651,11 @@ def _trust(L, flags, shape):
     return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags)), shape)
 
 
+def _occluded(est: MotionEstimate):
+    """The estimate's occluded mask, or no pixel hidden where it was made without one."""
+    return jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
+
+
 @jax.jit
 def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
     """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
@@ -905,7 +910,7 @@ class Odometry:
         if policy.segment:
             static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
             if valid:  # the current frame's view of the reference, at the estimated pose
-                occluded = jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
+                occluded = _occluded(est)
                 # through the host (77 kB at 320x240): from an exported program (jaxvo.aot) the
                 # masks are committed to the device, and a committed input would commit the map
                 # and everything computed from it, the estimate's weights included, so the map's
@@ -994,7 +999,7 @@ class Odometry:
         without the segmentation)."""
         policy = self.policy
         if policy.segment:
-            occluded = jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
+            occluded = _occluded(est)
             T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
                 (est.T_cur_ref, est.inlier_ratio, est.valid,
                  _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))
