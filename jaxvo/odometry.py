@@ -1113,11 +1113,18 @@ class Odometry:
         back = [i for i in earlier if 0 < new - i <= _CUE_BACK and i in self._cues and (i == 0 or self.valid[i - 1])
                 and self._cue_cam.width >= _CUE_MIN_WIDTH]
         cue = self._cues[min(back)] if back else self._cues[new]
-        T_cue = (geometry.inverse(self._chain_pose(min(back))) @ T_world_new if back else np.eye(4)).astype(np.float32)
+        T_cue = self._view_pose(min(back), new, T_world_new) if back else np.eye(4, dtype=np.float32)
         self._tested = new - min(back) if back else 0
         self._L, self._flags = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
                                      self._map_cam, self.params, self._cues[new], cue, T_cue, np.bool_(bool(back)),
                                      self._cue_cam)
+
+    def _view_pose(self, view: int, new: int, T_world_new: np.ndarray) -> np.ndarray:
+        """T_view_new (4, 4) float32, the pose at which the new reference ``new`` (camera-to-world
+        ``T_world_new``) is tested for motion against the earlier frame ``view``: from the chained
+        poses. On its own seam so that `experiments/map_poses.py` can measure what the masks reach
+        with other poses there (the ground truth, or one estimated between the two frames)."""
+        return (geometry.inverse(self._chain_pose(view)) @ T_world_new).astype(np.float32)
 
     def _chain_pose(self, i: int) -> np.ndarray:
         """T_world_cam that frames estimated against frame i chain from: its anchor (fused and

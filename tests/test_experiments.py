@@ -203,6 +203,45 @@ def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
     assert "python experiments/mask_limits.py" in text and "| seq1 |" in text and "| precision 1-2 |" in text
 
 
+def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
+    """map_poses: the odometry asks ``Odometry._view_pose`` for each motion test's pose, the
+    "true" variant answers with the ground truth's relative pose and the method is restored
+    after the block; the "chained" variant is the library's run itself (the same mask counts as
+    paper_sequences.run_default); the table has a row per variant."""
+    import jax
+    from jaxvo import geometry, odometry
+    mp, ps = _script("map_poses"), _script("paper_sequences")
+    (job,) = ps.sequence_jobs(["seq2"], [], [0], 7, cache=tmp_path / "cache")
+    ((name, seed, seq, true_masks, frames),) = ps.opened_jobs([job])
+    ok, G = seq.groundtruth_at_frames()
+    asked = []
+    original = odometry.Odometry._view_pose
+    with mp.view_poses("true", G):
+        answer = odometry.Odometry._view_pose
+
+        def spy(self, view, new, T_world_new):
+            T = answer(self, view, new, T_world_new)
+            asked.append((view, new, T))
+            return T
+        odometry.Odometry._view_pose = spy
+        ps.run_default(seq, frames, true_masks, jax.random.key(0))
+        odometry.Odometry._view_pose = answer
+    assert odometry.Odometry._view_pose is original
+    assert asked, "no motion test asked for its pose"
+    for view, new, T in asked:
+        assert view < new and T.dtype == np.float32
+        np.testing.assert_allclose(T, geometry.inverse(G[view]) @ G[new], atol=1e-6)
+    out = tmp_path / "mp.md"
+    mp.main(["--sequences", "seq2", "--augment", "", "--frames", "7", "--seeds", "0", "--variants", "chained,true",
+             "--cache", str(tmp_path / "cache"), "--out", str(out)])
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert [r["variant"] for r in rows] == ["chained", "true"]
+    plain = ps.run_default(seq, frames, true_masks, jax.random.key(0))["mask"]
+    assert rows[0]["counts"] == [plain["tp"], plain["fp"], plain["fn"]]
+    text = out.read_text()
+    assert "python experiments/map_poses.py" in text and "| seq2 | true |" in text
+
+
 def test_hindsight_masks_quick(tmp_path):
     """hindsight_masks --quick: one seq1 row with the online, estimated- and true-pose counts; the
     hindsight counts cover every valid-depth pixel of the 8 frames; the table names the command."""
