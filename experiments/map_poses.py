@@ -10,7 +10,9 @@ elsewhere, everything else unchanged:
 * ``chained``: as the library does (the default);
 * ``true``: the ground-truth relative pose (what a perfect pose there would give: a bound);
 * ``re-estimated``: RANSAC (``Config()``) between the two frames' motion-test images (160x120 at
-  640x480), started from the chained pose, kept where its estimate is valid.
+  640x480), started from the chained pose, kept where its estimate is valid;
+* ``re-estimated-full``: the same between the two frames themselves (full resolution; the
+  odometry no longer holds the earlier frame, the script passes it in).
 
 It reports the moving mask as ``experiments/paper_sequences.py`` scores it (pooled over the
 seeds) and the ATE, per sequence and variant.
@@ -41,7 +43,7 @@ from jaxvo.frame import Frame  # noqa: E402
 
 import paper_sequences  # noqa: E402
 
-VARIANTS = ("chained", "true", "re-estimated")
+VARIANTS = ("chained", "true", "re-estimated", "re-estimated-full")
 
 
 def parse_args(argv=None):
@@ -61,25 +63,30 @@ def parse_args(argv=None):
 
 
 @contextlib.contextmanager
-def view_poses(variant: str, T_world_cam_true: Optional[np.ndarray] = None):
+def view_poses(variant: str, T_world_cam_true: Optional[np.ndarray] = None, frames: Optional[list] = None):
     """Within the block, ``Odometry._view_pose`` gives ``variant``'s pose (T_view_new, float32).
 
-    T_world_cam_true: (N, 4, 4) ground-truth camera-to-world poses of the frames ("true")."""
+    T_world_cam_true: (N, 4, 4) ground-truth camera-to-world poses of the frames ("true").
+    frames: the sequence's frames ("re-estimated-full")."""
     chained = odometry.Odometry._view_pose
 
     def true(self, view, new, T_world_new):
         return (geometry.inverse(T_world_cam_true[view]) @ T_world_cam_true[new]).astype(np.float32)
 
-    def re_estimated(self, view, new, T_world_new):
+    def re_estimated(self, view, new, T_world_new, full=False):
         T0 = chained(self, view, new, T_world_new)
-        (ref_int, ref_depth), (view_int, view_depth) = self._cues[new], self._cues[view]
+        if full:
+            ref, other, camera = frames[new], frames[view], self.camera
+        else:
+            (ref_int, ref_depth), (view_int, view_depth) = self._cues[new], self._cues[view]
+            ref, other = Frame(np.asarray(ref_int), np.asarray(ref_depth)), Frame(np.asarray(view_int), np.asarray(view_depth))
+            camera = self._cue_cam
         # a key of its own, apart from every frame's estimate (those fold in j - 1 < 10**6)
-        est = odometry.estimate_motion(Frame(np.asarray(ref_int), np.asarray(ref_depth)),
-                                       Frame(np.asarray(view_int), np.asarray(view_depth)), self._cue_cam,
-                                       Config(), jax.random.fold_in(self.key, 10 ** 6 + new), init=T0)
+        est = odometry.estimate_motion(ref, other, camera, Config(), jax.random.fold_in(self.key, 10 ** 6 + new), init=T0)
         return np.asarray(est.T_cur_ref, np.float32) if bool(est.valid) else T0
 
-    odometry.Odometry._view_pose = {"chained": chained, "true": true, "re-estimated": re_estimated}[variant]
+    odometry.Odometry._view_pose = {"chained": chained, "true": true, "re-estimated": re_estimated,
+                                    "re-estimated-full": lambda *a: re_estimated(*a, full=True)}[variant]
     try:
         yield
     finally:
@@ -99,7 +106,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                              "the 'true' variant needs a pose for every frame")
         for variant in a.variants:
             common.log(f"{name} (seed {seed}): {variant}")
-            with view_poses(variant, G):
+            with view_poses(variant, G, frames):
                 r = paper_sequences.run_default(seq, frames, true_masks, jax.random.key(seed))
             m = r["mask"]
             rows.append({"sequence": name, "seed": seed, "variant": variant,
@@ -118,7 +125,8 @@ def write(a, argv, rows: List[dict], total_s: float) -> None:
     lines += ["", f"The default odometry (`jaxvo.track`, `TrackConfig()`) with the pose of each new reference's "
               f"motion test against its earlier view (`Odometry._view_pose`) from the chained estimates "
               f"(*chained*, the library's), from the ground truth (*true*), or re-estimated by RANSAC between the "
-              f"two frames' motion-test images (*re-estimated*); everything else unchanged. Seeds "
+              f"two frames' motion-test images (*re-estimated*, 160x120) or the frames themselves "
+              f"(*re-estimated-full*); everything else unchanged. Seeds "
               f"{', '.join(map(str, a.seed_list))}, at most {a.frames} frames per sequence, the augmentations with "
               f"2 persons covering ~30 % of the view as `experiments/paper_sequences.py` makes them. Moving mask as "
               f"that script scores it, pooled over the seeds' pixels; ATE mean (range) over the seeds. Total wall "
