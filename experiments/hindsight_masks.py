@@ -126,7 +126,9 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     lines = common.provenance_md("Moving-pixel masks in hindsight", "experiments/hindsight_masks.py", argv_list)
     lines += [f"Offsets {', '.join(str(o) for o in OFFSETS)} frames; ratio {params.ratio}, region_ratio "
               f"{params.region_ratio}, depth_slope {params.depth_slope} (`jaxvo.hindsight.HindsightParams`). {a.frames} frames at most per "
-              f"sequence; the augmentation's seeds {a.seeds}, the synthetic sequences' {a.synthetic_seeds}. "
+              f"sequence; " + "; ".join(([f"the augmentation's seeds {a.seeds}"] if a.augment else [])
+                                         + ([f"the synthetic sequences' {a.synthetic_seeds}"] if a.sequences else []))
+              + ". "
               f"Total wall time {time.perf_counter() - t_start:.0f} s.", "",
               "*online*: the default odometry's moving mask as `paper_sequences.py` scores it (per estimate, "
               "on its reference, over the pixels it decided). *hindsight*: `jaxvo.hindsight.sequence_masks` "
