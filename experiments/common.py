@@ -36,8 +36,13 @@ for _p in (str(_REPO), str(_HERE)):
 
 import jax  # noqa: E402
 
-from jaxvo import datasets, machine, metrics, peers, trajectory  # noqa: E402
-from jaxvo.odometry import METHODS, Config, estimate_motion  # noqa: E402
+from jaxvo.data import sequences as datasets
+from jaxvo.runtime import machine
+from jaxvo.evaluation import metrics
+from jaxvo.evaluation import peers
+from jaxvo.data import trajectory  # noqa: E402
+from jaxvo.config import METHODS, Config  # noqa: E402
+from jaxvo.estimator.motion import estimate_motion  # noqa: E402
 
 RESULTS = _HERE / "results"
 CACHE = RESULTS / "cache"
@@ -187,7 +192,7 @@ def median_ms_per_call(functions: Sequence[Callable], inputs: Sequence[tuple], r
 
 
 def estimator_shapes(camera, config: Config) -> tuple:
-    """Abstract arguments of ``jaxvo.odometry._estimate_jit`` for ``camera``'s image size (float32
+    """Abstract arguments of ``jaxvo.estimator.motion._estimate_jit`` for ``camera``'s image size (float32
     images, key 0, a (4, 4) initial pose and full-resolution weights), to trace and compile it
     without frames: ``_estimate_jit.trace(*estimator_shapes(camera, config)).lower()``."""
     import jax.numpy as jnp

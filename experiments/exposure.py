@@ -26,9 +26,10 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo import geometry  # noqa: E402
-from jaxvo.odometry import Config, estimate_motion  # noqa: E402
-from jaxvo.pyramid import build_pyramid  # noqa: E402
-from jaxvo.residuals import reference_points, residuals  # noqa: E402
+from jaxvo.config import Config  # noqa: E402
+from jaxvo.estimator.motion import estimate_motion  # noqa: E402
+from jaxvo.estimator.pyramid import build_pyramid  # noqa: E402
+from jaxvo.estimator.residuals import reference_points, residuals  # noqa: E402
 
 DEFAULT_PAIRS = "60-61,95-101,105-112,109-115,109-120,109-128,130-134"
 

@@ -8,11 +8,11 @@ persistent static/dynamic segmentation) once along the sequence, seed 0, and wri
   inliers of the estimate, green = outliers or pixels the segmentation marks dynamic,
   grey = no depth / not seen in the current frame;
 * ``bonn_hindsight.png``: the same reference frames with the masks decided in hindsight from
-  the odometry's trajectory (``jaxvo masks``, :func:`jaxvo.hindsight.sequence_masks`: each frame
+  the odometry's trajectory (``jaxvo masks``, :func:`jaxvo.tracking.hindsight.sequence_masks`: each frame
   against the frames up to 48 before and after it); green = moving, blue = the rest with depth;
 * ``bonn_map.png``: the map preview (perspective and top view): reference frames, about every
   5th frame, back-projected with their estimated poses, the points on pixels the segmentation
-  marked dynamic painted green (``jaxvo.mapping.MOVING_COLOUR``), 1 cm voxels;
+  marked dynamic painted green (``jaxvo.pipelines.mapping.MOVING_COLOUR``), 1 cm voxels;
 * with ``--ply PATH``, the coloured cloud as a PLY file (not kept in the repository: ~10 MB).
 
 Example::
@@ -32,8 +32,11 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo import hindsight, mapping, viz  # noqa: E402
-from jaxvo.odometry import Config, TrackConfig, track  # noqa: E402
+from jaxvo import viz
+from jaxvo.tracking import hindsight
+from jaxvo.pipelines import mapping  # noqa: E402
+from jaxvo.config import Config, TrackConfig
+from jaxvo.tracking.odometry import track  # noqa: E402
 
 DEFAULT_SEQUENCE = "bonn/rgbd_bonn_crowd"
 

@@ -6,7 +6,7 @@ augmentation of fr2_desk: 2 persons, 30 % coverage), for each seed:
 * the default odometry (``jaxvo.track``) runs along the sequence; its moving mask is scored as
   ``experiments/paper_sequences.py`` scores it (per estimate, on its reference frame, over the
   pixels it decided: the estimate's valid pixels and the segmentation's dynamic ones);
-* :func:`jaxvo.hindsight.sequence_masks` then decides every frame's mask from the odometry's
+* :func:`jaxvo.tracking.hindsight.sequence_masks` then decides every frame's mask from the odometry's
   poses (``estimated``; the frames whose estimate failed and whose pose was held get no mask and
   serve as no view, as ``jaxvo masks`` leaves out the poses ``jaxvo run`` marks held; their true
   moving pixels count as missed) and from the ground-truth poses (``true``: what the method gives when the
@@ -36,9 +36,9 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 
 import jax  # noqa: E402
 
-from jaxvo import trajectory  # noqa: E402
-from jaxvo.datasets import TumSequence  # noqa: E402
-from jaxvo.hindsight import OFFSETS, HindsightParams, sequence_masks  # noqa: E402
+from jaxvo.data import trajectory  # noqa: E402
+from jaxvo.data.sequences import TumSequence  # noqa: E402
+from jaxvo.tracking.hindsight import OFFSETS, HindsightParams, sequence_masks  # noqa: E402
 
 import paper_sequences  # noqa: E402
 
@@ -125,13 +125,13 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
 
     lines = common.provenance_md("Moving-pixel masks in hindsight", "experiments/hindsight_masks.py", argv_list)
     lines += [f"Offsets {', '.join(str(o) for o in OFFSETS)} frames; ratio {params.ratio}, region_ratio "
-              f"{params.region_ratio}, depth_slope {params.depth_slope} (`jaxvo.hindsight.HindsightParams`). {a.frames} frames at most per "
+              f"{params.region_ratio}, depth_slope {params.depth_slope} (`jaxvo.tracking.hindsight.HindsightParams`). {a.frames} frames at most per "
               f"sequence; " + "; ".join(([f"the augmentation's seeds {a.seeds}"] if a.augment else [])
                                          + ([f"the synthetic sequences' {a.synthetic_seeds}"] if a.sequences else []))
               + ". "
               f"Total wall time {time.perf_counter() - t_start:.0f} s.", "",
               "*online*: the default odometry's moving mask as `paper_sequences.py` scores it (per estimate, "
-              "on its reference, over the pixels it decided). *hindsight*: `jaxvo.hindsight.sequence_masks` "
+              "on its reference, over the pixels it decided). *hindsight*: `jaxvo.tracking.hindsight.sequence_masks` "
               "from the odometry's poses (*estimated*) and from the ground truth (*true*), per frame over "
               "every pixel with valid depth. Precision / recall: mean (min - max) of the per-seed pooled "
               "scores; *pooled*: all seeds' counts together. *s per frame*: the hindsight pass from the "

@@ -51,13 +51,14 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo.odometry import Config, _estimate, _estimate_args  # noqa: E402
-from jaxvo.solvers import COMPILER_OPTIONS  # noqa: E402
+from jaxvo.config import Config  # noqa: E402
+from jaxvo.estimator.motion import _estimate, _estimate_args  # noqa: E402
+from jaxvo.estimator.solvers import COMPILER_OPTIONS  # noqa: E402
 from speed import DYNAMIC, STATIC, load_pairs  # noqa: E402
 
 SCRIPT = Path(__file__)
 
-# (stage, the jax.named_scope of jaxvo.odometry / jaxvo.ransac that marks it in a kernel's op_name)
+# (stage, the jax.named_scope of jaxvo.tracking.odometry / jaxvo.estimator.ransac that marks it in a kernel's op_name)
 STAGES: Tuple[Tuple[str, str], ...] = (
     ("pyramid", "pyramid"),
     ("points", "points"),

@@ -34,7 +34,8 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo.odometry import Config, TrackConfig, track  # noqa: E402
+from jaxvo.config import Config, TrackConfig
+from jaxvo.tracking.odometry import track  # noqa: E402
 
 DEFAULT_SEQUENCES = ("bonn/rgbd_bonn_crowd", "tum/rgbd_dataset_freiburg2_desk")
 

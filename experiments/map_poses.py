@@ -1,7 +1,7 @@
 """What the moving masks reach with other poses for the segmentation's motion test.
 
 Each new reference of the default odometry is tested for motion against an earlier frame
-(:func:`jaxvo.segmentation.motion_regions`) at the pose between the two that the odometry
+(:func:`jaxvo.tracking.segmentation.motion_regions`) at the pose between the two that the odometry
 chained (``Odometry._view_pose``). Where persons the map has not found yet pull the first
 estimates, that pose is centimetres off, and parallax then moves the nearest static objects in
 the test as if they walked. This script runs the default odometry with that one pose taken from
@@ -37,7 +37,8 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 
 import jax  # noqa: E402
 
-from jaxvo import geometry, odometry  # noqa: E402
+from jaxvo import geometry
+from jaxvo.tracking import odometry  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 

@@ -6,7 +6,7 @@ why, on sequences with exact moving masks and exact poses, in three parts:
 
 * **Free space, ideal.** For each reference frame and each baseline (1, 2, 4, 8, 16 frames
   back, the views the map's votes use), the share of the reference's truly moving pixels (map
-  level, valid depth) that the segmentation's free-space test (:func:`jaxvo.segmentation.vote`,
+  level, valid depth) that the segmentation's free-space test (:func:`jaxvo.tracking.segmentation.vote`,
   its default margins) marks *behind* (the view saw through them: dynamic evidence) and *seen*
   (the view saw a surface at their depth: counted as static evidence), with the **ground-truth**
   relative pose, so pose error plays no part. A body that moves sideways within its own
@@ -16,7 +16,7 @@ why, on sequences with exact moving masks and exact poses, in three parts:
   misalignment explains, for moving and for static pixels, at the ground-truth poses and at the
   default odometry's (what its outliers, and appearance votes, could flag where free space cannot).
 * **The default odometry's moving mask** (as ``experiments/paper_sequences.py`` scores it,
-  :func:`jaxvo.mapping.moving_mask`), pooled over the first ``--early`` pairs and over the rest.
+  :func:`jaxvo.pipelines.mapping.moving_mask`), pooled over the first ``--early`` pairs and over the rest.
 
     python experiments/mask_limits.py                        # seq2, handheld-fast, fr2_desk + persons, seeds 0-2
     python experiments/mask_limits.py --augment '' --sequences seq1 --seeds 0
@@ -40,12 +40,14 @@ import jax  # noqa: E402
 
 import jax.numpy as jnp  # noqa: E402
 
-from jaxvo import geometry, segmentation, trajectory  # noqa: E402
+from jaxvo import geometry
+from jaxvo.tracking import segmentation
+from jaxvo.data import trajectory  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
-from jaxvo.datasets import TumSequence  # noqa: E402
-from jaxvo.pyramid import build_pyramid  # noqa: E402
-from jaxvo.ransac import inliers  # noqa: E402
-from jaxvo.residuals import reference_points, residuals, sample_bilinear  # noqa: E402
+from jaxvo.data.sequences import TumSequence  # noqa: E402
+from jaxvo.estimator.pyramid import build_pyramid  # noqa: E402
+from jaxvo.estimator.ransac import inliers  # noqa: E402
+from jaxvo.estimator.residuals import reference_points, residuals, sample_bilinear  # noqa: E402
 
 import paper_sequences  # noqa: E402
 
@@ -97,7 +99,7 @@ def free_space_shares(seq: TumSequence, frames: list, true_masks: list, params: 
     """{baseline: (behind, seen, references)}: over the reference frames k >= baseline, the mean
     share of frame k's truly moving pixels (map level: a map pixel at least half of whose pixels
     move, with valid map-level depth) that the view ``baseline`` frames earlier, at its
-    ground-truth pose, marks behind and seen (:func:`jaxvo.segmentation.vote`)."""
+    ground-truth pose, marks behind and seen (:func:`jaxvo.tracking.segmentation.vote`)."""
     covered, T_world_cam = seq.groundtruth_at_frames()
     cam = seq.camera.at_level(segmentation.MAP_LEVEL)
     depths = [segmentation.map_depth(f.depth) for f in frames]
@@ -231,7 +233,7 @@ def write(a, argv, rows: List[dict], total_s: float) -> None:
     if any("early_counts" in r for r in rows):
         lines += ["## The default odometry's moving mask", "",
                   f"`jaxvo.track` with its defaults; the moving mask of each estimate (its outliers not hidden in the "
-                  f"current frame plus the segmentation's dynamic pixels, `jaxvo.mapping.moving_mask`) against the "
+                  f"current frame plus the segmentation's dynamic pixels, `jaxvo.pipelines.mapping.moving_mask`) against the "
                   f"reference's true mask, pooled over the seeds: pairs 1-{a.early} and the rest.", "",
                   f"| sequence | precision 1-{a.early} | recall 1-{a.early} | precision after | recall after | "
                   "precision all | recall all |", "| --- | --- | --- | --- | --- | --- | --- |"]

@@ -7,7 +7,7 @@ fast), and with ``--augment`` dynamic augmentations of real TUM sequences (synth
 composited into the real frames, real ground truth, exact masks), runs the three estimators on every consecutive pair and reports, per sequence and
 method: translational / rotational RPE (per frame and over 1 s), ATE, the drift of the last
 frame, FPS after compilation, the mean inlier ratio and the precision / recall / IoU of the
-moving mask (:func:`jaxvo.mapping.moving_mask`: outliers not hidden in the current frame,
+moving mask (:func:`jaxvo.pipelines.mapping.moving_mask`: outliers not hidden in the current frame,
 plus the segmentation's dynamic pixels, on the reference frame's pixels) against the true
 moving-pixel masks. Figures per sequence (like the paper's Fig. 5/6): trajectories (top view,
 aligned to ground truth) and translational error over time for the three methods, plus
@@ -35,11 +35,14 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 
 import jax  # noqa: E402
 
-from jaxvo import geometry, metrics, trajectory, viz  # noqa: E402
+from jaxvo import geometry, viz
+from jaxvo.evaluation import metrics
+from jaxvo.data import trajectory  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
-from jaxvo.datasets import TumSequence  # noqa: E402
-from jaxvo.mapping import load_mask, moving_mask, read_moving_masks  # noqa: E402
-from jaxvo.odometry import METHODS, Config, TrackConfig, track  # noqa: E402
+from jaxvo.data.sequences import TumSequence  # noqa: E402
+from jaxvo.pipelines.mapping import load_mask, moving_mask, read_moving_masks  # noqa: E402
+from jaxvo.config import METHODS, Config, TrackConfig
+from jaxvo.tracking.odometry import track  # noqa: E402
 
 SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast")
 SIZES = {"640x480": 0, "320x240": 1, "160x120": 2}
@@ -438,7 +441,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
               "after rigid alignment; drift: error of the last pose relative to the first (cm, deg); FPS "
               "after compilation (1000 / median ms per pair, this machine); mask P/R/IoU: moving mask "
               "(outliers not hidden by something in front in the current frame, plus the segmentation's "
-              "dynamic pixels; jaxvo.mapping.moving_mask) against the true moving-pixel mask, pooled over "
+              "dynamic pixels; jaxvo.pipelines.mapping.moving_mask) against the true moving-pixel mask, pooled over "
               "all pairs, over the pixels where the residuals are defined.", ""]
     cols = [("sequence", "sequence", "s")] + ([("seed", "seed", "d")] if len(a.seed_list) > 1 else []) + [
             ("frames", "frames", "d"), ("moving %", "moving_pct", ".1f"), ("method", "method", "s"),

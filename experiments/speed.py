@@ -40,8 +40,10 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
-from jaxvo.odometry import METHODS, Config, estimate_motion, trace_count, track  # noqa: E402
-from jaxvo.solvers import jit  # noqa: E402
+from jaxvo.config import METHODS, Config
+from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.tracking.odometry import track  # noqa: E402
+from jaxvo.estimator.solvers import jit  # noqa: E402
 
 STATIC = "rgbd_dataset_freiburg2_desk"
 DYNAMIC = "rgbd_bonn_crowd"
@@ -180,7 +182,7 @@ def time_methods_and_peers(sets, methods, peer_names, repeats, key):
 
 def time_levels(seq, frames, pairs, methods, repeats, key, quick: bool):
     """t(finest_level=l) for each level l, and the per-level differences."""
-    from jaxvo.pyramid import num_levels_for
+    from jaxvo.estimator.pyramid import num_levels_for
     cam = seq.camera
     L = num_levels_for(cam.width, cam.height)
     levels = [L - 1] if quick else list(range(L - 1, -1, -1))
@@ -223,7 +225,7 @@ def _timed(fn, *args, repeats: int = 3) -> float:
 def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     """Cost of each stage of one ``estimate_motion(config)`` call, per pyramid level.
 
-    The level loop of :func:`jaxvo.odometry.estimate_motion` is replayed with each stage as
+    The level loop of :func:`jaxvo.estimator.motion.estimate_motion` is replayed with each stage as
     its own jitted call on the same inputs (the pose carried from level to level as in the
     estimator, so the iteration counts are the real ones): ``points`` (the reference points
     and the scoring subgrid), ``prior`` (the plain LM fit that makes the first candidate),
@@ -235,11 +237,11 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     end-to-end time minus the sum (the final masks and statistics, dispatch and fusion
     effects of running the stages as separate programs).
     """
-    from jaxvo.odometry import _block, _levels
-    from jaxvo.pyramid import build_pyramid
-    from jaxvo.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose, score_weights
-    from jaxvo.residuals import reference_points, residuals, select_points
-    from jaxvo.solvers import irls, solve_pose, solve_pose_small
+    from jaxvo.estimator.motion import _block, _levels
+    from jaxvo.estimator.pyramid import build_pyramid
+    from jaxvo.estimator.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose, score_weights
+    from jaxvo.estimator.residuals import reference_points, residuals, select_points
+    from jaxvo.estimator.solvers import irls, solve_pose, solve_pose_small
 
     cfg = config
     dw = cfg.depth_weight if cfg.terms == "rgbd" else None
@@ -375,8 +377,9 @@ def time_default(paths, frames_n: int, peer_ms, key):
     and the carried segmentation), after a warm-up pass over the same frames compiled everything,
     and the time spent in the segmentation's map updates (wrapped and blocked on)."""
 
-    from jaxvo import odometry
-    from jaxvo.odometry import Odometry, TrackConfig
+    from jaxvo.tracking import odometry
+    from jaxvo.tracking.odometry import Odometry
+    from jaxvo.config import TrackConfig
 
     rows = []
     for set_name, path in paths.items():

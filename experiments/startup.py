@@ -8,7 +8,7 @@ process three times:
    (no tracing, no compilation);
 3. ``no export``: the same folder with the exported programs deleted: JAX's compilation cache
    alone (the estimator is traced and lowered, then its executable loaded), as before
-   ``jaxvo.aot``.
+   ``jaxvo.runtime.aot``.
 
 Reported per run: ``first pair s`` (jaxvo's summary line ``compile``: from the start of tracking
 to the first pair's pose, reading, tracing, compiling and running it) and ``process s`` (the
@@ -49,7 +49,7 @@ import numpy as np
 
 import common  # noqa: F401  (sys.path for jaxvo)
 
-from jaxvo import cache  # noqa: E402
+from jaxvo.runtime import cache  # noqa: E402
 
 SCRIPT = Path(__file__)
 RUNS = ("first", "second", "no export")
@@ -134,8 +134,8 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
     import numpy as np
 
     from jaxvo.config import Config
-    from jaxvo.odometry import _estimate_args, _estimate_jit
-    from jaxvo.solvers import COMPILER_OPTIONS
+    from jaxvo.estimator.motion import _estimate_args, _estimate_jit
+    from jaxvo.estimator.solvers import COMPILER_OPTIONS
 
     s = common.open_sequence(seq, max_frames=pairs + 1)
     frames = common.load_frames(s)
@@ -179,10 +179,10 @@ def part_rows(seq: Path) -> List[dict]:
     import numpy as np
 
     from jaxvo.config import Config
-    from jaxvo.pyramid import build_pyramid
-    from jaxvo.ransac import ransac_level
-    from jaxvo.residuals import reference_points, select_points
-    from jaxvo.solvers import irls, solve_pose_small
+    from jaxvo.estimator.pyramid import build_pyramid
+    from jaxvo.estimator.ransac import ransac_level
+    from jaxvo.estimator.residuals import reference_points, select_points
+    from jaxvo.estimator.solvers import irls, solve_pose_small
 
     s = common.open_sequence(seq)
     c = Config()
@@ -249,8 +249,8 @@ def codegen_child(seq: Path, hlo_out: Path) -> None:
     import jax
 
     from jaxvo.config import Config
-    from jaxvo.odometry import _estimate_jit
-    from jaxvo.solvers import COMPILER_OPTIONS
+    from jaxvo.estimator.motion import _estimate_jit
+    from jaxvo.estimator.solvers import COMPILER_OPTIONS
 
     jax.config.update("jax_enable_compilation_cache", False)
     camera = common.open_sequence(seq, max_frames=2).camera
@@ -367,7 +367,7 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
               for r in rows]
     if stages:
         lines += ["", "## Where the first compilation goes", "",
-                  "The estimator alone (`jaxvo.odometry._estimate_jit`) at the sequence's image size, in one "
+                  "The estimator alone (`jaxvo.estimator.motion._estimate_jit`) at the sequence's image size, in one "
                   "process with no cache: `jit(...).trace`, `.lower` (for the parts: both), `.compile` (XLA) "
                   "timed separately; `cpu`: CPU seconds of the whole process during the XLA compilation (less "
                   "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "

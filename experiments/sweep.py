@@ -34,8 +34,9 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
-from jaxvo.odometry import METHODS, Config, estimate_motion  # noqa: E402
-from jaxvo.solvers import jit  # noqa: E402
+from jaxvo.config import METHODS, Config  # noqa: E402
+from jaxvo.estimator.motion import estimate_motion  # noqa: E402
+from jaxvo.estimator.solvers import jit  # noqa: E402
 
 STATIC = "rgbd_dataset_freiburg2_desk"
 

@@ -32,7 +32,7 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo.odometry import Config  # noqa: E402
+from jaxvo.config import Config  # noqa: E402
 
 DEFAULT_METHODS = "classic,huber,ransac,opencv-rgb,opencv-rgbd,open3d-color,open3d-hybrid"
 

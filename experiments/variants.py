@@ -2,7 +2,7 @@
 
 Each variant is a set of ``Config`` fields changed from the default (``--variants`` JSON: name ->
 fields; the first is the baseline). For each method in ``--methods`` (a variant that sets
-``method`` itself runs once) and each variant, the estimator (``jaxvo.odometry._estimate_jit``)
+``method`` itself runs once) and each variant, the estimator (``jaxvo.estimator.motion._estimate_jit``)
 at 640x480: the XLA compilation of the first call (``.lower`` then ``.compile`` timed alone,
 wall and CPU seconds, lines of the lowered StableHLO), then the wall time per pair on pairs
 spread over a static (TUM fr2/desk) and a dynamic (Bonn crowd) sequence, the variants timed in
@@ -26,7 +26,7 @@ import common  # noqa: F401  (sys.path for jaxvo)
 import jax  # noqa: E402
 
 from jaxvo.config import METHODS, Config  # noqa: E402
-from jaxvo.odometry import _estimate_jit, estimate_motion  # noqa: E402
+from jaxvo.estimator.motion import _estimate_jit, estimate_motion  # noqa: E402
 
 DEFAULT_VARIANTS = '{"scan": {}, "per level": {"scan_levels": false}}'
 SETS = (("static", "rgbd_dataset_freiburg2_desk"), ("dynamic", "rgbd_bonn_crowd"))

@@ -20,14 +20,15 @@ metres (0 = invalid); pixels u = column, v = row, centres at integers.
 from jaxvo import geometry
 from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
 from jaxvo.frame import Frame, make_frame
-from jaxvo.odometry import (METHODS, Config, MotionEstimate, Odometry, Track, TrackConfig, TrackStep, estimate_motion,
-                            track)
-from jaxvo.datasets import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
-from jaxvo.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
-from jaxvo.metrics import ate, mask_scores, rpe
-from jaxvo.runner import RunResult, load_config, load_sequence, run_sequence
-from jaxvo.evaluation import evaluate, trajectory_errors
-from jaxvo.hindsight import HindsightParams, sequence_masks as hindsight_masks
+from jaxvo.config import METHODS, Config, TrackConfig
+from jaxvo.estimator.motion import MotionEstimate, estimate_motion
+from jaxvo.tracking.odometry import Odometry, Track, TrackStep, track
+from jaxvo.data.sequences import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
+from jaxvo.data.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
+from jaxvo.evaluation.metrics import ate, mask_scores, rpe
+from jaxvo.pipelines.run import RunResult, load_config, load_sequence, run_sequence
+from jaxvo.evaluation.report import evaluate, trajectory_errors
+from jaxvo.tracking.hindsight import HindsightParams, sequence_masks as hindsight_masks
 
 __all__ = [
     "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",

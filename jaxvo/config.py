@@ -1,5 +1,5 @@
 """Plain-data settings: :class:`Config` (the estimator, traced numeric fields) and
-:class:`TrackConfig` (the host-side tracking policy of :func:`jaxvo.odometry.track`).
+:class:`TrackConfig` (the host-side tracking policy of :func:`jaxvo.tracking.odometry.track`).
 
 Both are pytrees of plain values, so a ``jax.vmap`` over a numeric ``Config`` field is a
 hyperparameter sweep compiled once.
@@ -36,7 +36,7 @@ class Config:
     min_inlier_ratio: below this final inlier ratio the estimate is flagged invalid.
     min_depth_agreement, min_photometric_agreement: the estimate is also flagged invalid when
       fewer of the overlapping pixels agree in depth, or fewer of the textured pixels that
-      agree in depth agree in luminance too (see jaxvo.odometry.TrustStats; measured with
+      agree in depth agree in luminance too (see jaxvo.estimator.motion.TrustStats; measured with
       experiments/failure_flag.py).
       min_inlier_ratio 0.12 and min_depth_agreement 0.2 (from 0.2 and 0.35): where people cover
       two thirds of the view, the estimates against the keyframe are right (5-20 mm over 3-6
@@ -94,7 +94,7 @@ class Config:
       people walk with the camera and cover 40-50 % of the view the pixel count makes "the
       camera followed them" the largest consensus before the segmentation knows anything.
       The inlier ratio (``valid``) still counts pixels; RANSAC stops early on either share
-      (jaxvo.ransac.ransac_level). fr2_desk + 2 synthetic
+      (jaxvo.estimator.ransac.ransac_level). fr2_desk + 2 synthetic
       persons, default tracking, seeds 0-11 (experiments/results/augmented_default.md against
       augmented_power0.md, the same command with ``--config '{"score_depth_power": 0}' --policy
       '{"retry": false}'``): ATE 0.035 m against 0.048 m, mask precision 0.705 against 0.670 at
@@ -133,7 +133,7 @@ class Config:
     brightness: *static*, "offset" (default) or "none" (the paper: luminance compared as it is).
       "offset": each level first fits the exposure change I_cur ~ I_ref + offset on the pixels
       whose depth agrees at its starting pose, and shifts the reference by it when it exceeds
-      thresh_lum / 3 (jaxvo.brightness). Kinect-class cameras set their exposure
+      thresh_lum / 3 (jaxvo.estimator.brightness). Kinect-class cameras set their exposure
       automatically, and people in light clothes filling the view change it by ~36 grey levels
       (Bonn crowd frames 109 -> 120, experiments/exposure.py). Bonn crowd, default tracking,
       seeds 0-11: RPE 1 s 0.028 m/s, ATE 0.024 m, 0.60 deg/s against 0.039 / 0.032 / 1.14 with
@@ -281,7 +281,7 @@ jax.tree_util.register_dataclass(
 
 
 class TrackConfig(NamedTuple):
-    """How :func:`jaxvo.odometry.track` (and :class:`jaxvo.odometry.Odometry`) chooses each
+    """How :func:`jaxvo.tracking.odometry.track` (and :class:`jaxvo.tracking.odometry.Odometry`) chooses each
     frame's reference, keeps its static/dynamic segmentation, and treats failed estimates
     (host-side policy).
 
@@ -294,7 +294,7 @@ class TrackConfig(NamedTuple):
 
     The default is jaxvo's robust tracking: keyframes (gap 6, lag 3) with a
     segmentation that persists across frames (``segment``, see
-    :mod:`jaxvo.segmentation`), frame to frame while the segmentation sees nothing move
+    :mod:`jaxvo.tracking.segmentation`), frame to frame while the segmentation sees nothing move
     (``calm_fraction``), and the pose of each new reference made from more than its own
     estimate (``fuse``, ``smooth``). :meth:`frame_to_frame` is the paper's chaining
     (no segmentation), :meth:`keyframes` the keyframes alone.

@@ -60,7 +60,7 @@ def plot_trajectories(trajectories: Mapping[str, np.ndarray], reference: Optiona
     """Top view of several trajectories.
 
     trajectories: name -> (N, 3) positions or (N, 4, 4) poses, all in the same world frame
-      (align estimates to the ground truth first, e.g. with :func:`jaxvo.metrics.ate`).
+      (align estimates to the ground truth first, e.g. with :func:`jaxvo.evaluation.metrics.ate`).
     reference: name whose extent picks the view plane (falls back to the first trajectory).
     axes: explicit (i, j) axis indices for the plot's horizontal and vertical axes.
     Returns the Figure. Start points are marked with a circle.

@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from jaxvo import cache
+from jaxvo.runtime import cache
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -28,9 +28,9 @@ from click.testing import CliRunner
 
 from jaxvo import Camera, Config, Frame, TrackConfig, estimate_motion, track
 from jaxvo.camera import DEFAULT
-from jaxvo.cli import main
-from jaxvo.datasets import TumSequence
-from jaxvo.trajectory import read_tum_trajectory
+from jaxvo.cli.main import main
+from jaxvo.data.sequences import TumSequence
+from jaxvo.data.trajectory import read_tum_trajectory
 from jaxvo.validation import check_fields, real
 
 REPO = Path(__file__).resolve().parents[1]

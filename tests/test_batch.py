@@ -1,4 +1,4 @@
-"""Many sequences as one batch (jaxvo.batch): the same poses as each sequence alone, one compile.
+"""Many sequences as one batch (jaxvo.tracking.batch): the same poses as each sequence alone, one compile.
 
 Frames are rendered by jaxvo.synthetic at 640x480 and block-averaged to 160x120 so that the
 programs compile fast; the second sequence's camera has other intrinsics (vmapped) and the
@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry
-from jaxvo.batch import batch_size, estimate_batch, track_batch
+from jaxvo.tracking.batch import batch_size, estimate_batch, track_batch
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
-from jaxvo.odometry import Config, Odometry, TrackConfig, estimate_motion, trace_count, track
-from jaxvo.pyramid import downsample
+from jaxvo.config import Config, TrackConfig
+from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.tracking.odometry import Odometry, track
+from jaxvo.estimator.pyramid import downsample
 from jaxvo.synthetic import make_room, render
 
 CAM = DEFAULT.at_level(2)                      # 160 x 120
@@ -88,15 +90,16 @@ _TWO_DEVICES = """
 import sys
 import jax
 import numpy as np
-from jaxvo.batch import batch_size, estimate_batch, track_batch
+from jaxvo.tracking.batch import batch_size, estimate_batch, track_batch
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
-from jaxvo.odometry import Config, TrackConfig, track
+from jaxvo.config import Config, TrackConfig
+from jaxvo.tracking.odometry import track
 
-import jaxvo.batch
+import jaxvo.tracking.batch
 
 # the batched program's outputs, to check where the batch ran
-shardings, batched_call = [], jaxvo.batch._BATCHED
+shardings, batched_call = [], jaxvo.tracking.batch._BATCHED
 
 
 def recorded(*args):
@@ -105,7 +108,7 @@ def recorded(*args):
     return out
 
 
-jaxvo.batch._BATCHED = recorded
+jaxvo.tracking.batch._BATCHED = recorded
 data = np.load(sys.argv[1])
 frames = [Frame(i, d) for i, d in zip(data["intensity"], data["depth"])]
 cam = DEFAULT.at_level(2)
@@ -162,7 +165,7 @@ def test_cli_runs_a_folder_of_sequences_as_one_batch(tmp_path):
     sequence, the poses of each sequence run alone."""
     from click.testing import CliRunner
 
-    from jaxvo.cli import main
+    from jaxvo.cli.main import main
 
     def invoke(*args):
         r = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)

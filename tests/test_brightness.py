@@ -1,8 +1,8 @@
-"""jaxvo.brightness: the median the exposure offset is fitted with, against NumPy's."""
+"""jaxvo.estimator.brightness: the median the exposure offset is fitted with, against NumPy's."""
 import jax
 import numpy as np
 
-from jaxvo.brightness import masked_median
+from jaxvo.estimator.brightness import masked_median
 
 
 def test_masked_median_is_numpys_median_of_the_masked_values():

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.cache: where the persistent compilation cache lives, and that a second
+"""Tests of jaxvo.runtime.cache: where the persistent compilation cache lives, and that a second
 `jaxvo run` process loads the compiled estimator from it instead of compiling again."""
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 from click.testing import CliRunner
 
-from jaxvo import aot, cache
+from jaxvo.runtime import aot
+from jaxvo.runtime import cache
 from jaxvo.config import Config
-from jaxvo.cli import main
+from jaxvo.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -23,9 +23,9 @@ import pytest
 from click.testing import CliRunner
 
 from jaxvo.camera import DEFAULT
-from jaxvo.cli import main
-from jaxvo.datasets import data_root
-from jaxvo.trajectory import read_tum_trajectory
+from jaxvo.cli.main import main
+from jaxvo.data.sequences import data_root
+from jaxvo.data.trajectory import read_tum_trajectory
 
 REPO = Path(__file__).resolve().parents[1]
 FR2_DESK = data_root() / "tum" / "rgbd_dataset_freiburg2_desk"
@@ -329,11 +329,12 @@ def test_bonn_crowd_160_frames_end_to_end(tmp_path):
 
 
 def test_cli_matches_library_track(tmp_path, synth_seq):
-    """`jaxvo run` writes exactly what jaxvo.odometry.track computes (same keys, same chaining)."""
+    """`jaxvo run` writes exactly what jaxvo.tracking.odometry.track computes (same keys, same chaining)."""
     import jax
 
-    from jaxvo.datasets import TumSequence
-    from jaxvo.odometry import Config, track
+    from jaxvo.data.sequences import TumSequence
+    from jaxvo.config import Config
+    from jaxvo.tracking.odometry import track
 
     traj, masks = tmp_path / "t.txt", tmp_path / "masks"
     r = _invoke(["run", synth_seq, "--method", "ransac", "--max-frames", 6, "--seed", 7, "--out", traj,
@@ -396,7 +397,7 @@ def test_keyframe_options(tmp_path, synth_seq):
 @pytest.mark.parametrize("args, code, text", [(["--version"], 0, "jaxvo, version"),
                                               (["run", "/nonexistent-jaxvo-seq"], 2, "error: /nonexistent-jaxvo-seq")])
 def test_the_process_entry_leaves_with_the_commands_status_and_its_output_flushed(args, code, text):
-    """``python -m jaxvo`` ends in :func:`jaxvo.cli.entry`, which leaves with ``os._exit`` (the
+    """``python -m jaxvo`` ends in :func:`jaxvo.cli.main.entry`, which leaves with ``os._exit`` (the
     interpreter's teardown could abort while XLA's threads are busy): the command's exit status
     and everything it printed still come out."""
     r = subprocess.run([sys.executable, "-m", "jaxvo", *args], capture_output=True, text=True, timeout=120)

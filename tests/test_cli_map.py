@@ -6,9 +6,9 @@ import pytest
 from click.testing import CliRunner
 
 from jaxvo.camera import DEFAULT
-from jaxvo.cli import main
-from jaxvo.mapping import MOVING_COLOUR, read_ply
-from jaxvo.trajectory import read_tum_trajectory, write_tum_trajectory
+from jaxvo.cli.main import main
+from jaxvo.pipelines.mapping import MOVING_COLOUR, read_ply
+from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
 
 def _runner():

@@ -1,4 +1,4 @@
-"""Tests for jaxvo.datasets: TUM/Bonn reading, association, errors, lazy loading, ground truth."""
+"""Tests for jaxvo.data.sequences: TUM/Bonn reading, association, errors, lazy loading, ground truth."""
 from __future__ import annotations
 
 import threading
@@ -10,7 +10,7 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import BONN, DEFAULT, TUM_FR2, Camera, camera_for_size
-from jaxvo.datasets import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
+from jaxvo.data.sequences import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                             data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
                             read_pose_file)
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jaxvo.cli import main
-from jaxvo.datasets import DatasetError, find_sequence
-from jaxvo.evaluation import evaluate
-from jaxvo.trajectory import read_tum_trajectory
+from jaxvo.cli.main import main
+from jaxvo.data.sequences import DatasetError, find_sequence
+from jaxvo.evaluation.report import evaluate
+from jaxvo.data.trajectory import read_tum_trajectory
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxvo.datasets import data_root
+from jaxvo.data.sequences import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 EXP = REPO / "experiments"
@@ -209,7 +209,8 @@ def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
     after the block; the "chained" variant is the library's run itself (the same mask counts as
     paper_sequences.run_default); the table has a row per variant."""
     import jax
-    from jaxvo import geometry, odometry
+    from jaxvo import geometry
+    from jaxvo.tracking import odometry
     mp, ps = _script("map_poses"), _script("paper_sequences")
     (job,) = ps.sequence_jobs(["seq2"], [], [0], 7, cache=tmp_path / "cache")
     ((name, seed, seq, true_masks, frames),) = ps.opened_jobs([job])
@@ -364,7 +365,7 @@ def test_figures_small(tmp_path):
     hs = cv2.imread(str(out / "bonn_hindsight.png"))
     assert hs is not None and hs.shape == seg.shape
     assert cv2.imread(str(out / "bonn_map.png")) is not None
-    from jaxvo.mapping import read_ply
+    from jaxvo.pipelines.mapping import read_ply
     pts, cols = read_ply(tmp_path / "map.ply")
     assert len(pts) > 1000 and cols.shape == (len(pts), 3)
 

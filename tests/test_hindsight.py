@@ -1,4 +1,4 @@
-"""Moving-pixel masks in hindsight (``jaxvo.hindsight``, ``jaxvo masks``): one view's votes on
+"""Moving-pixel masks in hindsight (``jaxvo.tracking.hindsight``, ``jaxvo masks``): one view's votes on
 hand-made depth and luminance, the per-frame decision with its 3-D regions, the sequence loop
 on a synthetic sequence with exact masks and poses, and the command."""
 from __future__ import annotations
@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jaxvo import hindsight
+from jaxvo.tracking import hindsight
 from jaxvo.camera import DEFAULT
-from jaxvo.cli import main
-from jaxvo.datasets import TumSequence
-from jaxvo.evaluation import read_mask_dir
-from jaxvo.mapping import load_mask, read_moving_masks
-from jaxvo.trajectory import read_tum_trajectory, write_tum_trajectory
+from jaxvo.cli.main import main
+from jaxvo.data.sequences import TumSequence
+from jaxvo.evaluation.report import read_mask_dir
+from jaxvo.pipelines.mapping import load_mask, read_moving_masks
+from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
 CAM = DEFAULT.at_level(2)      # 160x120
 H, W = CAM.height, CAM.width
@@ -233,7 +233,7 @@ def test_map_with_hindsight_labels(seq1, tmp_path):
     """``jaxvo map --hindsight`` paints the moving points of the frames used from the hindsight masks
     (every matched frame a view): the person's share of the map's points is near its share of the
     frames' valid pixels, and the static room stays in its colours."""
-    from jaxvo.mapping import MOVING_COLOUR, read_ply
+    from jaxvo.pipelines.mapping import MOVING_COLOUR, read_ply
     out = tmp_path / "m.ply"
     r = CliRunner().invoke(main, ["map", str(seq1), str(seq1.parent / "traj.txt"), str(out), "--hindsight",
                                   "--every", "10", "--voxel", "0", "--no-progress"])
@@ -271,7 +271,7 @@ def test_run_marks_a_failed_frame_held(seq1, tmp_path):
 
     import cv2
 
-    from jaxvo.trajectory import read_held
+    from jaxvo.data.trajectory import read_held
     d = tmp_path / "seq"
     shutil.copytree(seq1, d)
     seq = TumSequence(d)

@@ -9,11 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxvo import geometry, metrics
-from jaxvo import odometry as O
+from jaxvo import geometry
+from jaxvo.evaluation import metrics
+from jaxvo.tracking import odometry as O
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
-from jaxvo.odometry import MotionEstimate, Odometry, TrackConfig
+from jaxvo.config import TrackConfig
+from jaxvo.estimator.motion import MotionEstimate
+from jaxvo.tracking.odometry import Odometry
 
 CAM = DEFAULT.at_level(2)          # 160x120: the frames only carry their index
 N = 240

@@ -1,13 +1,13 @@
-"""jaxvo.mapping: PLY round trip, back-projection onto known geometry, voxel grid, map building."""
+"""jaxvo.pipelines.mapping: PLY round trip, back-projection onto known geometry, voxel grid, map building."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from jaxvo import mapping
+from jaxvo.pipelines import mapping
 from jaxvo.camera import DEFAULT
-from jaxvo.datasets import DatasetError, TumSequence
-from jaxvo.trajectory import read_tum_trajectory
+from jaxvo.data.sequences import DatasetError, TumSequence
+from jaxvo.data.trajectory import read_tum_trajectory
 
 CAM = DEFAULT.at_level(2)   # 160x120: fast to render
 
@@ -122,7 +122,7 @@ def test_build_map_with_masks_and_preview(seq1_dir, tmp_path):
 
 def test_moving_mask_leaves_out_pixels_hidden_in_the_current_frame():
     from types import SimpleNamespace
-    from jaxvo.mapping import moving_mask, outlier_mask
+    from jaxvo.pipelines.mapping import moving_mask, outlier_mask
     valid = np.ones((4, 6), bool)
     valid[0, 0] = False
     inlier = np.ones((4, 6), bool)

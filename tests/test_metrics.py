@@ -1,4 +1,4 @@
-"""Tests for jaxvo.metrics with hand-computable answers."""
+"""Tests for jaxvo.evaluation.metrics with hand-computable answers."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry as G
-from jaxvo.metrics import align_umeyama, associate, ate, mask_scores, rpe, summarize
+from jaxvo.evaluation.metrics import align_umeyama, associate, ate, mask_scores, rpe, summarize
 
 
 def straight(n, step, dt=0.1, t0=0.0):

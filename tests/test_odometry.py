@@ -18,7 +18,9 @@ import jaxvo
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
-from jaxvo.odometry import Config, TrackConfig, estimate_motion, trace_count, track
+from jaxvo.config import Config, TrackConfig
+from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.tracking.odometry import track
 from jaxvo.synthetic import make_person, make_room, render
 from jaxvo.synthetic.motions import _T, rot_y
 
@@ -353,8 +355,8 @@ def test_sample_gate_drops_pixels_something_stepped_in_front_of():
     """RANSAC's sample centres skip reference pixels whose depth residual at the starting pose
     exceeds Config.sample_gate (an occluder that arrived after the reference), and the gate
     stands down when it would leave fewer than 10 % of the trusted pixels."""
-    from jaxvo.odometry import _gated
-    from jaxvo.pyramid import build_pyramid
+    from jaxvo.estimator.motion import _gated
+    from jaxvo.estimator.pyramid import build_pyramid
     cam = DEFAULT.at_level(2)
     h, w = cam.height, cam.width
     rng = np.random.default_rng(0)
@@ -384,9 +386,9 @@ def test_brightness_offset_recovers_an_exposure_change(static_pair):
     """The current frame 40 grey levels brighter (auto exposure): at the true pose every pixel
     fails |luminance residual| < 30, so the paper's RANSAC loses the motion; Config.brightness
     = "offset" fits the offset on the pixels whose depth agrees and recovers it."""
-    from jaxvo.brightness import apply, fit_offset
-    from jaxvo.pyramid import build_pyramid
-    from jaxvo.residuals import reference_points
+    from jaxvo.estimator.brightness import apply, fit_offset
+    from jaxvo.estimator.pyramid import build_pyramid
+    from jaxvo.estimator.residuals import reference_points
     a, b = static_pair
     bright = Frame(np.clip(b.frame().intensity + 40.0, 0, 255).astype(np.float32), b.frame().depth)
     plain = estimate_motion(a.frame(), bright, CAM, Config(brightness="none"), jax.random.key(0))
@@ -418,7 +420,7 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
     levels 3-2 (every pixel: 4800 and 19200 points, so level 3's point list and scoring grid are
     padded), and with the (4, 2, 1, 1) tiles [3], [2, 1], [0] (level 3's 4800 points padded to
     19200 would be 23 %). Classic and Huber run per level."""
-    from jaxvo.odometry import _level_groups
+    from jaxvo.estimator.motion import _level_groups
     assert _level_groups(Config(), 4, 640, 480) == [[3, 2, 1], [0]]
     assert _level_groups(Config.paper(), 4, 640, 480) == [[3, 2], [1], [0]]
     assert _level_groups(Config(blocks=(4, 2, 1, 1)), 4, 640, 480) == [[3], [2, 1], [0]]
@@ -441,7 +443,7 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
 def test_pixel_counts_are_the_sums_of_the_masks():
     """The estimator's and the map's pixel counts come from one variadic reduction: the same
     integers as a jnp.sum per mask, for 1-D and 2-D masks."""
-    from jaxvo.odometry import _pixel_counts
+    from jaxvo.estimator.motion import _pixel_counts
     rng = np.random.default_rng(3)
     for shape in ((307,), (48, 64)):
         masks = [jnp.asarray(rng.random(shape) < p) for p in (0.0, 0.2, 0.5, 1.0)]

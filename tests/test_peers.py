@@ -20,8 +20,8 @@ import jaxvo
 from jaxvo import geometry
 from jaxvo.camera import TUM_FR2
 from jaxvo.frame import Frame, make_frame
-from jaxvo import peers
-from jaxvo.peers import OpenCVOdometry, PeerResult, cut_depth
+from jaxvo.evaluation import peers
+from jaxvo.evaluation.peers import OpenCVOdometry, PeerResult, cut_depth
 
 SEQ = "tum/rgbd_dataset_freiburg2_desk"
 

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.pyramid: valid-only depth averaging, max-depth cut, shapes, gradients."""
+"""Tests of jaxvo.estimator.pyramid: valid-only depth averaging, max-depth cut, shapes, gradients."""
 from __future__ import annotations
 
 import jax
@@ -6,8 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo import pyramid
-from jaxvo.pyramid import downsample, gradients, num_levels_for, sanitize_depth
+from jaxvo.estimator import pyramid
+from jaxvo.estimator.pyramid import downsample, gradients, num_levels_for, sanitize_depth
 
 # jit once per shape: op-by-op dispatch of the eager version is slow on a busy machine
 build_pyramid = jax.jit(pyramid.build_pyramid, static_argnums=(2,))

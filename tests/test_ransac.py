@@ -1,4 +1,4 @@
-"""Tests of jaxvo.ransac: hypothesis count, inlier test, patch sampling, one RANSAC level."""
+"""Tests of jaxvo.estimator.ransac: hypothesis count, inlier test, patch sampling, one RANSAC level."""
 from __future__ import annotations
 
 import functools
@@ -10,10 +10,10 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
-from jaxvo import pyramid
-from jaxvo.ransac import (_nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table,
+from jaxvo.estimator import pyramid
+from jaxvo.estimator.ransac import (_nth_true, inliers, num_hypotheses, ransac_level, sample_patches, sampling_table,
                           score_pose, score_weights)
-from jaxvo.residuals import Residuals, reference_points
+from jaxvo.estimator.residuals import Residuals, reference_points
 
 CAM = DEFAULT.at_level(3)          # 80 x 60
 H, W = CAM.height, CAM.width
@@ -297,11 +297,11 @@ def test_depth_power_ranks_hypotheses_by_the_surface_their_inliers_cover(level_p
 
 
 def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
-    """A level padded and stacked with larger ones (jaxvo.pyramid.stack_padded, for the scan over
+    """A level padded and stacked with larger ones (jaxvo.estimator.pyramid.stack_padded, for the scan over
     levels) draws the same patch pixels for the same key (the k-th drawable pixel is the same
     pixel), gathers the same reference points, and gives the same residuals, validity included
     at the image border and beyond it (where the pad must not count as image)."""
-    from jaxvo.residuals import gather_points, photometric_terms, residuals, rgbd_terms
+    from jaxvo.estimator.residuals import gather_points, photometric_terms, residuals, rgbd_terms
     rng = np.random.default_rng(0)
     h, w = 48, 64
     img = jnp.asarray(rng.uniform(0, 255, (h, w)), jnp.float32)

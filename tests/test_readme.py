@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxvo.datasets import DatasetError, find_sequence
+from jaxvo.data.sequences import DatasetError, find_sequence
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -50,13 +50,13 @@ def test_readme_first_screen_and_results_document():
 
 
 def test_library_runs_and_evaluates_without_the_cli():
-    """run_sequence and evaluate are library functions: importing them loads neither jaxvo.cli nor click."""
+    """run_sequence and evaluate are library functions: importing them loads neither jaxvo.cli.main nor click."""
     import subprocess
     import sys
 
     code = ("import sys, jaxvo; jaxvo.run_sequence, jaxvo.evaluate, jaxvo.open_sequence; "
-            "from jaxvo.runner import run_sequence; from jaxvo.evaluation import evaluate; "
-            "bad = [m for m in ('jaxvo.cli', 'click') if m in sys.modules]; assert not bad, bad")
+            "from jaxvo.pipelines.run import run_sequence; from jaxvo.evaluation.report import evaluate; "
+            "bad = [m for m in ('jaxvo.cli.main', 'click') if m in sys.modules]; assert not bad, bad")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
 

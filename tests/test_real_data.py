@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry
-from jaxvo.datasets import TumSequence, data_root
-from jaxvo.odometry import Config, estimate_motion
+from jaxvo.data.sequences import TumSequence, data_root
+from jaxvo.config import Config
+from jaxvo.estimator.motion import estimate_motion
 
 METHODS = ("classic", "huber", "ransac")
 
@@ -124,13 +125,14 @@ def test_bonn_crowd_pairs_six_frames_apart(bonn_crowd):
 def test_fr2_desk_with_persons_default_flags_them_and_beats_pairwise_ransac(fr2_desk, tmp_path):
     """The real fr2_desk's first 30 frames with two synthetic persons walking in front of the
     desk (``jaxvo augment``, seeds 3 and 6: exact moving masks, real ground truth and sensor
-    noise). The default tracking's moving mask (jaxvo.mapping.moving_mask on each reference)
+    noise). The default tracking's moving mask (jaxvo.pipelines.mapping.moving_mask on each reference)
     covers the persons and little else, and its trajectory beats the paper's frame-to-frame
     RANSAC. Measured 2026-11-26: pooled precision / recall 0.87 / 0.84 (0.88 / 0.85, 0.85 /
     0.84), ATE 4.4 and 6.4 mm against RANSAC's 15.4 and 11.2 mm."""
-    from jaxvo import metrics
-    from jaxvo.mapping import load_mask, moving_mask, read_moving_masks
-    from jaxvo.odometry import TrackConfig, track
+    from jaxvo.evaluation import metrics
+    from jaxvo.pipelines.mapping import load_mask, moving_mask, read_moving_masks
+    from jaxvo.config import TrackConfig
+    from jaxvo.tracking.odometry import track
     from jaxvo.synthetic import augment
 
     counts = np.zeros(3)          # true positives, false positives, false negatives

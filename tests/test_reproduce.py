@@ -10,9 +10,9 @@ import pytest
 from click.testing import CliRunner
 
 import jaxvo
-from jaxvo.cli import main
+from jaxvo.cli.main import main
 from jaxvo.config import Config, TrackConfig
-from jaxvo.runner import read_run_settings
+from jaxvo.pipelines.run import read_run_settings
 
 
 def test_config_json_round_trip_is_exact_and_generic_over_fields():
@@ -69,12 +69,12 @@ def test_config_file_errors_are_one_line(tmp_path):
 
 
 def test_header_records_the_machine_and_a_rerun_elsewhere_says_so(tmp_path):
-    """The header names what decides the floats (jaxvo.machine: CPU, usable cores, jax/jaxlib,
+    """The header names what decides the floats (jaxvo.runtime.machine: CPU, usable cores, jax/jaxlib,
     device); rerunning a file made on this machine prints no note and gives the same bytes,
     one whose record differs gets a note that names each difference."""
     import os
 
-    from jaxvo import machine
+    from jaxvo.runtime import machine
     from jaxvo.camera import DEFAULT
     from jaxvo.synthetic import generate
 
@@ -115,7 +115,7 @@ def test_header_records_the_machine_and_a_rerun_elsewhere_says_so(tmp_path):
 
 
 def test_machine_differences_name_only_fields_both_records_have():
-    from jaxvo.machine import differences
+    from jaxvo.runtime.machine import differences
 
     assert differences({"cpu": "A", "cores": 2}, {"cpu": "A", "cores": 2}) == []
     assert differences({"cpu": "A", "cores": 2, "gone": 1}, {"cpu": "B", "cores": 2, "new": 3}) == ["cpu: A -> B"]

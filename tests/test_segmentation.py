@@ -1,4 +1,4 @@
-"""The persistent static/dynamic segmentation (jaxvo.segmentation) and the streaming Odometry.
+"""The persistent static/dynamic segmentation (jaxvo.tracking.segmentation) and the streaming Odometry.
 
 Scenes are rendered by jaxvo.synthetic (exact depth, exact moving-pixel masks) at
 320x240, the map level of a 640x480 camera, with the camera at half resolution:
@@ -11,9 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo import geometry, segmentation as S
+from jaxvo import geometry
+from jaxvo.tracking import segmentation as S
 from jaxvo.camera import DEFAULT, Camera
-from jaxvo.odometry import Config, Odometry, TrackConfig, trace_count, track
+from jaxvo.config import Config, TrackConfig
+from jaxvo.estimator.motion import trace_count
+from jaxvo.tracking.odometry import Odometry, track
 from jaxvo.synthetic import make_sequence
 
 CAM = DEFAULT
@@ -127,7 +130,7 @@ def test_current_vote_counts_unexplained_appearance_as_motion(seq):
     """An estimate at the true pose from frame 0 to 3 of seq2: free space says nothing yet on the
     person (it is still where it was along 98 % of its rays), but its texture moved. The outliers the
     estimate leaves there vote dynamic (photo_vote) instead of static; the room's vote is unchanged."""
-    from jaxvo.odometry import estimate_motion
+    from jaxvo.estimator.motion import estimate_motion
     s, r = seq
     T = _T(s, 3, 0)
     est = estimate_motion(r[0].frame(), r[3].frame(), CAM, Config(), jax.random.key(0), init=T)
@@ -361,7 +364,7 @@ def test_odometry_compiles_once(frames320):
 
 
 def _jitted():
-    from jaxvo import odometry as O
+    from jaxvo.tracking import odometry as O
     return [O._map_inputs, O._trust, O._trust_ratios, O._unexplained, O._update_map, O._new_reference_map,
             O._later_motion_test]
 
@@ -422,12 +425,12 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     """The segmentation's programs compiled in the background from the first frame have the
     signatures of the later calls: those calls compile nothing (a mismatch, e.g. a dtype or a
     sharding, would compile every program twice, once for nothing). Through the exported
-    estimator (jaxvo.aot, as the CLI runs it), whose outputs are committed to the device, the
+    estimator (jaxvo.runtime.aot, as the CLI runs it), whose outputs are committed to the device, the
     estimator compiles once although its weights are the map's on some frames and none on others.
     The motion tests are let run at this small size, so that the first reference's later test
     is among the calls."""
-    from jaxvo import aot
-    from jaxvo import odometry as O
+    from jaxvo.runtime import aot
+    from jaxvo.tracking import odometry as O
     monkeypatch.setattr(O, "_CUE_MIN_WIDTH", 0)
     later = []
 

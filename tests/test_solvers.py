@@ -1,4 +1,4 @@
-"""Tests of jaxvo.solvers: robust scale, Huber weights, pose recovery on a rendered plane."""
+"""Tests of jaxvo.estimator.solvers: robust scale, Huber weights, pose recovery on a rendered plane."""
 from __future__ import annotations
 
 import functools
@@ -10,9 +10,9 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
-from jaxvo import pyramid
-from jaxvo.residuals import reference_points
-from jaxvo.solvers import _cholesky_solve6, huber_weights, irls, robust_scale, solve_pose, solve_pose_small
+from jaxvo.estimator import pyramid
+from jaxvo.estimator.residuals import reference_points
+from jaxvo.estimator.solvers import _cholesky_solve6, huber_weights, irls, robust_scale, solve_pose, solve_pose_small
 
 CAM = DEFAULT.at_level(2)          # 160 x 120
 H, W = CAM.height, CAM.width
@@ -214,9 +214,9 @@ def test_solvers_use_only_the_public_jaxopt_api():
     import ast
     import inspect
 
-    import jaxvo.solvers
+    import jaxvo.estimator.solvers
 
-    tree = ast.parse(inspect.getsource(jaxvo.solvers))
+    tree = ast.parse(inspect.getsource(jaxvo.estimator.solvers))
     for node in ast.walk(tree):
         if isinstance(node, ast.ClassDef):
             assert "jaxopt" not in " ".join(ast.unparse(b) for b in node.bases), node.name
@@ -227,11 +227,11 @@ def test_solvers_use_only_the_public_jaxopt_api():
 
 def test_lm_uses_the_analytic_jacobian(pair):
     """The residual function jaxopt differentiates is the square-root form of the weighted
-    problem built from the analytic Jacobian of jaxvo.residuals.photometric_terms (a custom
+    problem built from the analytic Jacobian of jaxvo.estimator.residuals.photometric_terms (a custom
     JVP), not autodiff through the sampler: its Jacobian R and residual rho give the same
     Gauss-Newton matrix, gradient and cost as the N weighted residuals."""
-    from jaxvo.residuals import photometric_terms
-    from jaxvo.solvers import _JITTER, _square_root_fun
+    from jaxvo.estimator.residuals import photometric_terms
+    from jaxvo.estimator.solvers import _JITTER, _square_root_fun
 
     ref, cur, pts = pair
     T0 = jnp.asarray(G.exp(0.5 * XI_TRUE), jnp.float32)
@@ -251,13 +251,13 @@ def test_lm_uses_the_analytic_jacobian(pair):
 
 
 def test_consensus_refinement_evaluates_once_per_iteration(pair):
-    """With :data:`jaxvo.solvers.COMPILER_OPTIONS` XLA merges the evaluations jaxopt's update
+    """With :data:`jaxvo.estimator.solvers.COMPILER_OPTIONS` XLA merges the evaluations jaxopt's update
     makes at one point (residual, auxiliary output, Jacobian): the LM loop's body samples the
     current image once per iteration (5 gathers: 4 bilinear corners, 1 depth for the
     occlusion test), not three times."""
     import re
 
-    from jaxvo.solvers import jit
+    from jaxvo.estimator.solvers import jit
 
     ref, cur, pts = pair
     text = jit(lambda T, w: solve_pose(T, pts, cur, CAM, w, 6)).lower(jnp.eye(4), jnp.ones(pts.u.shape)).compile() \

@@ -1,4 +1,4 @@
-"""Tests for jaxvo.trajectory: chaining, TUM trajectory I/O, crash-safe writer."""
+"""Tests for jaxvo.data.trajectory: chaining, TUM trajectory I/O, crash-safe writer."""
 from __future__ import annotations
 
 import signal
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry as G
-from jaxvo.datasets import DatasetError
-from jaxvo.datasets import read_pose_file
-from jaxvo.trajectory import (HEADER, TrajectoryWriter, chain, format_pose_line, read_tum_trajectory,
+from jaxvo.data.sequences import DatasetError
+from jaxvo.data.sequences import read_pose_file
+from jaxvo.data.trajectory import (HEADER, TrajectoryWriter, chain, format_pose_line, read_tum_trajectory,
                               write_tum_trajectory)
 
 
@@ -88,7 +88,7 @@ def test_writer_keeps_lines_after_kill(tmp_path):
     out = tmp_path / "killed.txt"
     code = textwrap.dedent(f"""
         import os, signal, sys, numpy as np
-        from jaxvo.trajectory import TrajectoryWriter
+        from jaxvo.data.trajectory import TrajectoryWriter
         w = TrajectoryWriter({str(out)!r}).open()
         w.write_first(0.0)
         T = np.eye(4); T[2, 3] = -0.01
@@ -155,7 +155,7 @@ def test_read_sorts_and_refuses_duplicate_stamps(tmp_path):
 def test_held_poses_are_marked_and_read_back(tmp_path):
     """A held pose gets a '# held <stamp>' line before it: read_held returns its stamp, and the pose
     readers (which skip comments) still read every pose."""
-    from jaxvo.trajectory import TrajectoryWriter, read_held, read_tum_trajectory
+    from jaxvo.data.trajectory import TrajectoryWriter, read_held, read_tum_trajectory
     p = tmp_path / "t.txt"
     with TrajectoryWriter(p) as w:
         w.write_first(1.0)

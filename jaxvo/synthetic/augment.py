@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from jaxvo.camera import Camera
-from jaxvo.datasets import DatasetError, TumSequence
+from jaxvo.data.sequences import DatasetError, TumSequence
 from jaxvo.synthetic.render import render
 from jaxvo.synthetic.scene import Scene, make_person
 from jaxvo.synthetic.writer import depth_to_png, write_list

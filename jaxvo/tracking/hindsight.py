@@ -1,6 +1,6 @@
 """Moving-pixel masks of a recorded sequence, decided in hindsight from its trajectory.
 
-Online (:mod:`jaxvo.segmentation`) a frame can only be compared with frames before it,
+Online (:mod:`jaxvo.tracking.segmentation`) a frame can only be compared with frames before it,
 and between frames a fraction of a second apart a person who walks slowly, or moves
 with the camera, stays on most of the pixels it covered: the evidence that it moves
 grows only as it leaves them (``experiments/mask_limits.py``). Once a whole sequence has
@@ -16,12 +16,12 @@ trajectory's relative pose, at full resolution. In a view, a reference pixel is
 * *changed* when, seen, its depth disagrees by ``thresh_depth`` (plus ``depth_slope * z^2``,
   the sensor's noise and the poses' error growing with depth) or more, or its luminance,
   less the pair's exposure offset (the median luminance residual of the pixels whose depth
-  agrees, :func:`jaxvo.brightness.masked_median`), differs by more than ``thresh_lum`` plus
+  agrees, :func:`jaxvo.estimator.brightness.masked_median`), differs by more than ``thresh_lum`` plus
   the view's gradient magnitude there (what a one-pixel misalignment at an edge explains;
   without it the precision on the fr2_desk augmentation's seeds 0-5 was 0.76 instead of 0.79).
 
 A pixel is moving when it changed in at least ``ratio`` of the views that saw it. The
-reference's 3-D points are then grouped (:func:`jaxvo.segmentation.coherent_regions`,
+reference's 3-D points are then grouped (:func:`jaxvo.tracking.segmentation.coherent_regions`,
 k-means), and a group at least ``region_ratio`` of whose pixels are moving is flagged
 whole, so that a body seen by no view (hidden in all of them) joins its moving part.
 
@@ -39,12 +39,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxvo import geometry
-from jaxvo.brightness import masked_median
+from jaxvo.estimator.brightness import masked_median
 from jaxvo.camera import Camera
 from jaxvo.config import Config
-from jaxvo.pyramid import Level, build_pyramid
-from jaxvo.residuals import reference_points, residuals, sample_bilinear
-from jaxvo.segmentation import SegmentParams, coherent_regions
+from jaxvo.estimator.pyramid import Level, build_pyramid
+from jaxvo.estimator.residuals import reference_points, residuals, sample_bilinear
+from jaxvo.tracking.segmentation import SegmentParams, coherent_regions
 
 __all__ = ["HindsightParams", "OFFSETS", "frame_level", "view_votes", "decide", "sequence_masks"]
 
@@ -124,10 +124,10 @@ def sequence_masks(frame_at: Callable[[int], object], poses, camera: Camera, con
 
     frame_at(i): the i-th :class:`~jaxvo.frame.Frame` (e.g. ``TumSequence.frame``); it is called once
       per frame while that frame is inside the window of ``offsets`` around the frame decided.
-    poses: (N, 4, 4) T_world_cam (e.g. :attr:`jaxvo.odometry.Track.poses`); a frame whose pose is
+    poses: (N, 4, 4) T_world_cam (e.g. :attr:`jaxvo.tracking.odometry.Track.poses`); a frame whose pose is
       not finite (NaN) takes part neither as reference nor as view. Give NaN for the frames whose
       pose is a guess (``Track.valid`` False: the estimate failed and the previous pose was kept;
-      ``# held`` lines of a trajectory file, :func:`jaxvo.trajectory.read_held`): on handheld-fast
+      ``# held`` lines of a trajectory file, :func:`jaxvo.data.trajectory.read_held`): on handheld-fast
       seed 2 the masks' precision was 0.52 with its 19 held frames as views, 0.74 without.
     config: its ``thresh_lum``, ``thresh_depth`` and ``max_depth`` (default ``Config()``).
     mask: (H, W) bool, True on the frame's moving pixels (see the module docstring).

@@ -2,7 +2,7 @@
 
 Compiling the estimator takes seconds to tens of seconds per (image size, method); with the
 cache a second process on the same machine loads the compiled executables from disk instead.
-The folder also keeps the estimator's traced program (``exported/``, :mod:`jaxvo.aot`), since
+The folder also keeps the estimator's traced program (``exported/``, :mod:`jaxvo.runtime.aot`), since
 JAX's cache is keyed by the lowered program and a cache hit would still trace it first.
 ``jaxvo run`` / ``jaxvo demo`` turn it on by default. Where it lives, first match wins:
 
@@ -23,7 +23,7 @@ entries; JAX writes an entry only if its file is absent, and an entry that canno
 reported by JAX as a warning and compiled afresh. JAX's writes are not atomic (jax 0.10:
 ``pathlib.Path.write_bytes`` without a rename), so such a truncated entry stays until the
 folder is deleted; deleting the folder is always safe. ``exported/`` is written atomically
-(see :mod:`jaxvo.aot`). ``tests/test_cache.py`` starts two ``jaxvo run`` processes together on
+(see :mod:`jaxvo.runtime.aot`). ``tests/test_cache.py`` starts two ``jaxvo run`` processes together on
 an empty folder, then a third that must find every program there, traces no estimator and
 gives bitwise the trajectory of a ``--no-cache`` run.
 """
@@ -83,7 +83,7 @@ def enable(path: Optional[os.PathLike]) -> Optional[Path]:
         return None
     import jax
 
-    from jaxvo import aot
+    from jaxvo.runtime import aot
 
     aot.enable(path / "exported")  # the traced estimator too, so that a second process skips tracing
     jax.config.update("jax_compilation_cache_dir", str(path))

@@ -1,10 +1,10 @@
 """The estimator's traced program kept on disk, so that a later process skips tracing it.
 
-JAX's persistent compilation cache (:mod:`jaxvo.cache`) is keyed by the *lowered* program:
+JAX's persistent compilation cache (:mod:`jaxvo.runtime.cache`) is keyed by the *lowered* program:
 a process that finds its compiled estimator there must still trace and lower it first
 (about 3 s at 640x480 on a small CPU, most of a second process's start-up). This module
 keeps that lowered program too, as a ``jax.export`` serialization, in the folder given to
-:func:`enable` (``jaxvo.cache.enable`` uses ``<cache folder>/exported``). A later process
+:func:`enable` (``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
 deserializes it and calls it without tracing; its XLA compilation is then a hit in JAX's
 cache. The first process traces once, exports, writes the file and runs the exported
 program (one trace, one XLA compilation, as without this module).
@@ -82,7 +82,7 @@ def stats() -> dict:
 def _source_hash() -> str:
     if "hash" not in _SOURCE:
         h = hashlib.sha256()
-        root = Path(__file__).resolve().parent
+        root = Path(__file__).resolve().parents[1]   # the whole package: any change of the code is a new program
         for f in sorted(root.rglob("*.py")):
             h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
         _SOURCE["hash"] = h.hexdigest()

@@ -5,7 +5,7 @@ sequence folder (RPE, ATE, optionally outlier-mask scores);
 :func:`trajectory_errors` gives the summary errors of an in-memory trajectory;
 :func:`score_masks` pools mask scores of saved outlier masks against true
 moving-pixel masks. Poses are T_world_cam, timestamps seconds, errors in metres
-and degrees (see :mod:`jaxvo.metrics`).
+and degrees (see :mod:`jaxvo.evaluation.metrics`).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from jaxvo.datasets import DatasetError, is_bonn_sequence, read_file_list, read_groundtruth
+from jaxvo.data.sequences import DatasetError, is_bonn_sequence, read_file_list, read_groundtruth
 
 __all__ = ["evaluate", "trajectory_errors", "score_masks", "true_masks", "load_mask", "read_mask_dir",
            "load_groundtruth"]
@@ -22,7 +22,7 @@ __all__ = ["evaluate", "trajectory_errors", "score_masks", "true_masks", "load_m
 
 def trajectory_errors(gt, stamps, poses, max_dt=0.02) -> Dict[str, object]:
     """RPE (1 frame, and 1 s where the run is long enough) and ATE of a trajectory; skips what cannot be formed."""
-    from jaxvo.metrics import ate, rpe
+    from jaxvo.evaluation.metrics import ate, rpe
 
     gt_t, gt_T = gt
     out: Dict[str, object] = {}
@@ -81,11 +81,11 @@ def load_mask(p: Path) -> np.ndarray:
 
 
 def score_masks(pred_dir, true_stamps, true_paths, max_dt: float = 0.02):
-    """Pooled :func:`jaxvo.metrics.mask_scores` of saved outlier masks against true moving masks,
+    """Pooled :func:`jaxvo.evaluation.metrics.mask_scores` of saved outlier masks against true moving masks,
     matched by timestamp; returns (MaskScores, number of matched frames)."""
     import cv2
 
-    from jaxvo.metrics import associate, mask_scores
+    from jaxvo.evaluation.metrics import associate, mask_scores
 
     pred_dir = Path(pred_dir)
     if not pred_dir.is_dir():
@@ -104,7 +104,7 @@ def score_masks(pred_dir, true_stamps, true_paths, max_dt: float = 0.02):
         s = mask_scores(pred, true)
         tp, fp, fn, tn = tp + s.tp, fp + s.fp, fn + s.fn, tn + s.tn
     r = lambda a, b: a / b if b else float("nan")  # noqa: E731
-    from jaxvo.metrics import MaskScores
+    from jaxvo.evaluation.metrics import MaskScores
     return MaskScores(r(tp, tp + fp), r(tp, tp + fn), r(tp, tp + fp + fn), r(tn, tn + fp + fn),
                       r(tp + tn, tp + fp + fn + tn), tp, fp, fn, tn), int(ia.size)
 
@@ -138,8 +138,8 @@ def evaluate(groundtruth, estimate, delta: float = 1.0, delta_unit: str = "s", m
     Raises DatasetError when the ground truth does not cover the estimate: an estimate pose
     more than ``max(max_dt, slack)`` s outside the ground truth's time span.
     """
-    from jaxvo.metrics import ate, rpe
-    from jaxvo.trajectory import read_tum_trajectory
+    from jaxvo.evaluation.metrics import ate, rpe
+    from jaxvo.data.trajectory import read_tum_trajectory
 
     gt_file, seq_dir, gt = load_groundtruth(Path(groundtruth), bonn)
     est_path = Path(estimate)

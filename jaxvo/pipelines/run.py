@@ -1,10 +1,10 @@
 """Run a sequence through the tracker: the library side of ``jaxvo run``.
 
-:func:`run_sequence` tracks a :class:`jaxvo.datasets.TumSequence` with
-:func:`jaxvo.odometry.track`, writes the trajectory as it goes and returns a
+:func:`run_sequence` tracks a :class:`jaxvo.data.sequences.TumSequence` with
+:func:`jaxvo.tracking.odometry.track`, writes the trajectory as it goes and returns a
 :class:`RunResult`; :func:`resolve_camera` finds a folder's intrinsics and
 :func:`load_config` reads a :class:`jaxvo.config.Config` from a JSON file.
-Bad input raises :class:`jaxvo.datasets.DatasetError` / ``ValueError`` with a
+Bad input raises :class:`jaxvo.data.sequences.DatasetError` / ``ValueError`` with a
 one-line message naming the file.
 """
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from jaxvo import machine
+from jaxvo.runtime import machine
 from jaxvo.camera import PRESETS, Camera
-from jaxvo.datasets import DatasetError, TumSequence, open_sequence
-from jaxvo.mapping import moving_mask
+from jaxvo.data.sequences import DatasetError, TumSequence, open_sequence
+from jaxvo.pipelines.mapping import moving_mask
 
 __all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
 
@@ -30,7 +30,7 @@ def read_run_settings(path) -> dict:
     trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
     ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method``, ``sequence`` (the
     reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir) and
-    ``machine`` (:func:`jaxvo.machine.record` of the machine that wrote it; older files lack it).
+    ``machine`` (:func:`jaxvo.runtime.machine.record` of the machine that wrote it; older files lack it).
     Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
     """
     p = Path(path)
@@ -87,7 +87,7 @@ def load_config(path=None, **overrides):
 def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> List[str]:
     """The ``#`` comment lines that start a trajectory file of :func:`run_sequence`: jaxvo's version,
     method, seed, the full config and track policy (JSON, :meth:`jaxvo.config.Config.to_json`), the
-    machine (:func:`jaxvo.machine.record`: on another CPU, core count or jaxlib the rerun may differ
+    machine (:func:`jaxvo.runtime.machine.record`: on another CPU, core count or jaxlib the rerun may differ
     at float rounding) and the reader's settings; ``jaxvo run --config TRAJ`` reads them back (:func:`read_run_settings`)."""
     from importlib.metadata import PackageNotFoundError, version
 
@@ -111,7 +111,7 @@ def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> 
 
 def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
                   **kwargs) -> TumSequence:
-    """Open a sequence folder of any supported layout (:func:`jaxvo.datasets.open_sequence`) with the
+    """Open a sequence folder of any supported layout (:func:`jaxvo.data.sequences.open_sequence`) with the
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
     (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
@@ -173,7 +173,7 @@ class _Recorder:
     def __init__(self, seq: TumSequence, config, seed: int, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None):
         from jaxvo.config import TrackConfig
-        from jaxvo.trajectory import HEADER, TrajectoryWriter
+        from jaxvo.data.trajectory import HEADER, TrajectoryWriter
 
         self.seq, self.method, self.on_pair, self.pbar = seq, config.method, on_pair, pbar
         self.stamps = np.asarray(seq.timestamps, np.float64)
@@ -233,7 +233,7 @@ class _Recorder:
 
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None) -> RunResult:
-    """Track ``seq`` with :func:`jaxvo.odometry.track` and ``policy`` (a
+    """Track ``seq`` with :func:`jaxvo.tracking.odometry.track` and ``policy`` (a
     :class:`jaxvo.config.TrackConfig`; default the library's TrackConfig()) and the key
     ``jax.random.key(seed)``, so results equal the library's. The trajectory goes to ``out`` as
     it grows (first frame at identity), after the ``#`` header of :func:`run_header` (version,
@@ -241,12 +241,12 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
     into ``save_masks`` (PNG named by the *reference* frame's timestamp: the mask lives on the
     reference image's pixels; with keyframes the last estimate against a reference, the longest
     baseline, is the one kept). ``on_pair(step)`` is called with each
-    :class:`jaxvo.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
+    :class:`jaxvo.tracking.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
     run early (``interrupted=True``) keeping everything written so far.
     """
     import jax
 
-    from jaxvo.odometry import track
+    from jaxvo.tracking.odometry import track
 
     rec = _Recorder(seq, config, seed, out, save_masks, on_pair, pbar, policy)
     interrupted = False
@@ -267,16 +267,16 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
 def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_pair: Optional[Callable] = None,
                   pbar=None, policy=None) -> List[RunResult]:
     """:func:`run_sequence` for several sequences of one image size as one batch
-    (:func:`jaxvo.batch.track_batch`: their estimates vmapped together, in lockstep, over the
+    (:func:`jaxvo.tracking.batch.track_batch`: their estimates vmapped together, in lockstep, over the
     available devices). Each sequence uses the key ``jax.random.key(seed)`` as it would alone and
     writes its trajectory to its entry of ``outs`` (None = none). ``on_pair(s, step)`` is called
-    with sequence index and :class:`jaxvo.odometry.TrackStep`. Returns one RunResult per sequence.
+    with sequence index and :class:`jaxvo.tracking.odometry.TrackStep`. Returns one RunResult per sequence.
     """
     import functools
 
     import jax
 
-    from jaxvo.batch import track_batch
+    from jaxvo.tracking.batch import track_batch
 
     outs = [None] * len(seqs) if outs is None else list(outs)
     recs = [_Recorder(seq, config, seed, out, None, None if on_pair is None else functools.partial(on_pair, s),

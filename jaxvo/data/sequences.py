@@ -70,7 +70,7 @@ def data_root() -> Path:
     env = os.environ.get("JAXVO_DATA")
     if env:
         return Path(env).expanduser()
-    return Path(__file__).resolve().parents[2] / "shared" / "data"
+    return Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
 def _is_sequence_dir(p: Path) -> bool:

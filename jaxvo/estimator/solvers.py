@@ -7,7 +7,7 @@ RANSAC hypotheses, solved by the hundred under ``vmap``, use the same LM written
 closed-form 6x6 normal equations (:func:`solve_pose_small`), a fraction of jaxopt's program,
 with per-residual weights passed as arrays so that shapes stay static: a
 weight of 0 removes a pixel without changing any shape. The Jacobian is
-materialised analytically (:func:`jaxvo.residuals.photometric_terms`), not by
+materialised analytically (:func:`jaxvo.estimator.residuals.photometric_terms`), not by
 autodiff through the image sampler.
 
 Both solvers form the normal equations in one pass over the pixels (:func:`_system`: warp,
@@ -30,8 +30,8 @@ import jaxopt
 
 from jaxvo import geometry
 from jaxvo.camera import Camera
-from jaxvo.pyramid import Level
-from jaxvo.residuals import RefPoints, photometric_terms, residuals, rgbd_terms
+from jaxvo.estimator.pyramid import Level
+from jaxvo.estimator.residuals import RefPoints, photometric_terms, residuals, rgbd_terms
 
 __all__ = ["Solution", "solve_pose", "solve_pose_small", "robust_scale", "huber_weights", "irls", "COMPILER_OPTIONS",
            "jit"]
@@ -123,7 +123,7 @@ def _square_root_fun(T0, ref, cur, camera, w, depth_weight):
     equations M of :func:`_system`), for the left increment ``delta`` of ``T0``.
 
     Its derivative is a ``jax.custom_jvp``: the Cholesky factor R (analytic, from the analytic
-    Jacobian of :mod:`jaxvo.residuals`, never autodiff through the image sampler). jaxopt's
+    Jacobian of :mod:`jaxvo.estimator.residuals`, never autodiff through the image sampler). jaxopt's
     LevenbergMarquardt with ``materialize_jac=True`` forms the Jacobian by ``jax.jacfwd``
     (jaxopt 0.8.x ignores ``jac_fun`` on that path), which yields R. Handing jaxopt the
     problem in this form instead of the N (weighted) residuals and their N x 6 Jacobian gives the
@@ -181,7 +181,7 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
 
     With ``depth_weight=None`` the residuals are photometric only (the paper's
     cost); with a number they are the joint photometric + depth residuals of
-    :func:`jaxvo.residuals.rgbd_terms`, the depth term scaled by ``depth_weight``
+    :func:`jaxvo.estimator.residuals.rgbd_terms`, the depth term scaled by ``depth_weight``
     (luminance units per metre).
 
     Args:

@@ -32,9 +32,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera
-from jaxvo.pyramid import Level, level_size, level_slice
-from jaxvo.residuals import RefPoints, Residuals, gather_points, residuals
-from jaxvo.solvers import solve_pose_small
+from jaxvo.estimator.pyramid import Level, level_size, level_slice
+from jaxvo.estimator.residuals import RefPoints, Residuals, gather_points, residuals
+from jaxvo.estimator.solvers import solve_pose_small
 
 __all__ = ["num_hypotheses", "inliers", "SamplingTable", "sampling_table", "sample_patches", "score_pose",
            "score_weights", "fit_hypothesis", "RansacResult", "ransac_level"]
@@ -155,7 +155,7 @@ def score_weights(score_ref: RefPoints, depth_power=0.0):
 def fit_hypothesis(T_init, ref_level: Level, cur_level: Level, camera: Camera, pu, pv, iterations: int,
                    depth_weight=None, offset=0.0):
     """(4, 4) T_cur_ref fitted, from ``T_init``, to the reference pixels (pu, pv) (integer, (M,)) only;
-    ``offset`` is added to their luminance (an exposure change, :mod:`jaxvo.brightness`)."""
+    ``offset`` is added to their luminance (an exposure change, :mod:`jaxvo.estimator.brightness`)."""
     pts = gather_points(ref_level, camera, pu, pv)
     pts = pts._replace(intensity=pts.intensity + offset)
     # the written-out 6x6 LM: jaxopt's iterates, a much smaller program under vmap
@@ -181,7 +181,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
     reference points the hypotheses are scored on. depth_weight: None fits each
     hypothesis on the photometric residual only (the paper); a number adds the
-    depth residual of the same pixels (see :func:`jaxvo.solvers.solve_pose_small`).
+    depth residual of the same pixels (see :func:`jaxvo.estimator.solvers.solve_pose_small`).
     scoring: "count" ranks hypotheses by their inlier count (the paper);
     "msac" by the truncated-quadratic (MSAC, Torr & Zisserman 2000) score
     sum over inliers of 1 - ((r_I/t_I)^2 + (r_Z/t_Z)^2) / 2, which prefers the
@@ -202,7 +202,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
     n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
     # the same times z^depth_power: the share of the scene surface the ranking measures
-    # (once per level: XLA's loop-invariant code motion is off for these programs, jaxvo.solvers)
+    # (once per level: XLA's loop-invariant code motion is off for these programs, jaxvo.estimator.solvers)
     surface_w = score_weights(score_ref, depth_power)
     s_ref = jnp.maximum(jnp.sum(surface_w), 1e-6)
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.camera import DEFAULT, camera_for_size
-from jaxvo.datasets import DatasetError, TumSequence
-from jaxvo.evaluation import load_mask, true_masks
-from jaxvo.mapping import moving_mask
-from jaxvo.runner import run_sequence
+from jaxvo.data.sequences import DatasetError, TumSequence
+from jaxvo.evaluation.report import load_mask, true_masks
+from jaxvo.pipelines.mapping import moving_mask
+from jaxvo.pipelines.run import run_sequence
 
 __all__ = ["run_demo", "DEMO_METHODS", "parse_size", "fmt", "progress_bar"]
 DEMO_METHODS = ("classic", "huber", "ransac")
@@ -70,8 +70,8 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     """The work of ``jaxvo demo``; returns a dict with ``table`` (str), ``results`` (per method),
     ``figures`` (paths) and ``wall_s``."""
     from jaxvo import viz
-    from jaxvo.metrics import ate, mask_scores, rpe
-    from jaxvo.odometry import Config
+    from jaxvo.evaluation.metrics import ate, mask_scores, rpe
+    from jaxvo.config import Config
     from jaxvo.synthetic import SensorModel, generate
 
     t_start = time.perf_counter()

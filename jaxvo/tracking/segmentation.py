@@ -25,7 +25,7 @@ pyramid level 1 (half resolution). It is
   vacated space (the free-space votes see a person walking along the line of
   sight, or sideways in front of a near wall, only along a thin strip); a reference with no
   such view at least 3 frames back (the first ones) is tested once more against the frame 3
-  frames after it (:class:`jaxvo.odometry.Odometry`);
+  frames after it (:class:`jaxvo.tracking.odometry.Odometry`);
 * made coherent per region (:func:`coherent_flags`): the reference's 3-D points
   are grouped by k-means (as Joint-VO-SF / StaticFusion do), and a group whose
   pixels are mostly dynamic is flagged as a whole, so a person is flagged as a
@@ -35,12 +35,12 @@ The region decisions (moving and coherent regions) raise the reference's trust
 while it is the reference; what is carried on is the per-pixel evidence, with
 the moving regions at ``motion_vote`` (+2 by default; :func:`reference_map` says why).
 
-The trust passed to :func:`jaxvo.odometry.estimate_motion` (``weights=``) is
+The trust passed to :func:`jaxvo.estimator.motion.estimate_motion` (``weights=``) is
 ``static_weight(flagged(L, flags))``, sigmoid(-L) with L raised by the flags:
 RANSAC samples pixels of weight >= 0.5, scoring and refinement weigh by it.
 
 Everything is pure JAX with static shapes; the host-side loop that owns the
-state is :class:`jaxvo.odometry.Odometry`.
+state is :class:`jaxvo.tracking.odometry.Odometry`.
 """
 from __future__ import annotations
 
@@ -50,8 +50,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera, backproject_planes
-from jaxvo.pyramid import block_mean, downsample, sanitize_depth
-from jaxvo.residuals import sample_bilinear, sample_nearest
+from jaxvo.estimator.pyramid import block_mean, downsample, sanitize_depth
+from jaxvo.estimator.residuals import sample_bilinear, sample_nearest
 
 __all__ = ["SegmentParams", "MAP_LEVEL", "CUE_LEVEL", "map_depth", "cue_images", "vote", "add_votes",
            "photometric_outliers", "add_current_vote", "propagate", "region_labels", "motion_regions",
@@ -343,7 +343,7 @@ def motion_regions(labels, k: int, ref_cue, view_cue, T_view_ref, camera: Camera
     flagged much of the white back wall around the persons (`experiments/figures.py`'s map
     39.6 % moving, 24.0 % with the test off, 27.4 % with the offset taken off). Per region,
     because exposure shifts bright and dark surfaces by different amounts: one offset for the
-    whole view, the median as :mod:`jaxvo.brightness` fits it for the estimate, left much of
+    whole view, the median as :mod:`jaxvo.estimator.brightness` fits it for the estimate, left much of
     the wall flagged (34.2 %). Taking off each shift's own offset instead cleared the wall as
     well but flagged more of fr2_desk's static low-texture surfaces (augmented pooled
     precision 0.786 against 0.810; scratch measurements, issue 10 notes).

@@ -51,7 +51,7 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .camera import Camera
+from jaxvo.camera import Camera
 
 __all__ = [
     "PeerResult", "OpenCVOdometry", "Open3DOdometry", "opencv_available", "open3d_available",

@@ -7,7 +7,7 @@ the world with ``T_world_cam``. Each point is labelled *static* (an inlier of th
 or *moving* (an outlier): static points keep their RGB colour, moving points are painted
 :data:`MOVING_COLOUR` (green, as the outliers of the paper's Fig. 4/7).
 
-Labels come from :func:`jaxvo.odometry.estimate_motion` on the pair (frame i, frame i+1) (for
+Labels come from :func:`jaxvo.estimator.motion.estimate_motion` on the pair (frame i, frame i+1) (for
 the last frame, (i, i-1)): the estimator's inlier mask lives on the *reference* frame's pixels,
 and ``valid_mask & ~inlier_mask`` are the outliers. Or, with ``labels="masks"``, from the
 sequence's ``masks/`` folder (8-bit PNGs, 255 = moving pixel, listed by timestamp in
@@ -91,7 +91,7 @@ class MapResult:
 def match_trajectory(frame_stamps, traj_stamps, traj_poses, max_dt: float = 0.02) -> Tuple[np.ndarray, np.ndarray]:
     """Poses for the frames: ``(frame indices (M,), T_world_cam (M, 4, 4))`` of the frames whose
     timestamp has a trajectory entry within ``max_dt`` seconds (one-to-one, nearest first)."""
-    from jaxvo.datasets import associate
+    from jaxvo.data.sequences import associate
 
     P = np.asarray(traj_poses, np.float64)
     ia, ib = associate(frame_stamps, traj_stamps, max_dt)
@@ -145,7 +145,7 @@ def moving_mask(est, width: int, height: int, static_mask=None, valid_too: bool 
     stepped in front of them, which says nothing about the pixel itself; on the synthetic
     sequences they were a third of the outliers that were not on a moving object), plus
     the pixels the segmentation did not trust as static (``static_mask`` False, the
-    :class:`~jaxvo.odometry.TrackStep` field). With ``valid_too`` also the mask of pixels
+    :class:`~jaxvo.tracking.odometry.TrackStep` field). With ``valid_too`` also the mask of pixels
     where this is decided (the estimate's valid pixels and the segmentation's dynamic ones).
     """
     out, val = outlier_mask(est, width, height, valid_too=True)
@@ -160,7 +160,7 @@ def moving_mask(est, width: int, height: int, static_mask=None, valid_too: bool 
 def read_moving_masks(seq_dir) -> Optional[Tuple[np.ndarray, list]]:
     """``(stamps, paths)`` of a sequence's moving-pixel masks (``masks.txt``, else ``masks/*.png``
     named by timestamp), or None when the sequence has none."""
-    from jaxvo.datasets import read_file_list
+    from jaxvo.data.sequences import read_file_list
 
     seq_dir = Path(seq_dir)
     if (seq_dir / "masks.txt").is_file():
@@ -184,7 +184,7 @@ def load_mask(p, shape) -> np.ndarray:
     file if it does not decode or its size is not ``shape`` (H, W)."""
     import cv2
 
-    from jaxvo.datasets import DatasetError
+    from jaxvo.data.sequences import DatasetError
     p = Path(p)
     m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
     if m is None:
@@ -226,18 +226,18 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
               max_depth: float = 4.0, labels: Optional[str] = "estimate", config=None, seed: int = 0,
               stride: int = 1, max_dt: float = 0.02,
               progress: Optional[Callable[[int, int], None]] = None) -> MapResult:
-    """Coloured point cloud of a :class:`jaxvo.datasets.TumSequence` from a trajectory.
+    """Coloured point cloud of a :class:`jaxvo.data.sequences.TumSequence` from a trajectory.
 
     Args:
       seq: the sequence (its camera must match the images).
       traj_stamps, traj_poses: (M,) seconds and (M, 4, 4) T_world_cam (e.g.
-        :func:`jaxvo.trajectory.read_tum_trajectory`); matched to the frames by timestamp
+        :func:`jaxvo.data.trajectory.read_tum_trajectory`); matched to the frames by timestamp
         within ``max_dt`` s. Frames without a pose are skipped.
       every: use every ``every``-th frame that has a pose.
       voxel: voxel size (m) for downsampling, None / 0 = keep every point.
       labels: "estimate" (outliers of ``estimate_motion`` on (i, i+1) with ``config``,
         default ``Config()`` = ransac; key ``fold_in(key(seed), i)``), "hindsight" (the masks of
-        :func:`jaxvo.hindsight.sequence_masks` from the trajectory's poses of every matched
+        :func:`jaxvo.tracking.hindsight.sequence_masks` from the trajectory's poses of every matched
         frame, ``config``'s thresholds), "masks" (the sequence's masks/), or None (everything
         static).
       stride: pixel subsampling of each frame before the voxel grid.
@@ -245,7 +245,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
 
     Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
     """
-    from jaxvo.datasets import DatasetError
+    from jaxvo.data.sequences import DatasetError
     from jaxvo.frame import make_frame
 
     t0 = time.perf_counter()
@@ -271,12 +271,13 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
     if labels == "estimate":
         import jax
 
-        from jaxvo.odometry import Config, estimate_motion
+        from jaxvo.config import Config
+        from jaxvo.estimator.motion import estimate_motion
         config = Config() if config is None else config
         key = jax.random.key(int(seed))
 
     if labels == "hindsight":   # every matched frame is a view; masks of the frames used, in order
-        from jaxvo.hindsight import sequence_masks
+        from jaxvo.tracking.hindsight import sequence_masks
         hindsight = sequence_masks(seq.frame, all_poses, cam, config, frames=[int(i) for i in idx])
 
     cache: Dict[int, tuple] = {}
@@ -365,7 +366,7 @@ def write_ply(path, points, colors=None) -> Path:
     rec["x"], rec["y"], rec["z"] = P[:, 0], P[:, 1], P[:, 2]
     if C is not None:
         rec["red"], rec["green"], rec["blue"] = C[:, 0], C[:, 1], C[:, 2]
-    header = ["ply", "format binary_little_endian 1.0", "comment written by jaxvo.mapping",
+    header = ["ply", "format binary_little_endian 1.0", "comment written by jaxvo.pipelines.mapping",
               f"element vertex {len(P)}", "property float x", "property float y", "property float z"]
     if C is not None:
         header += ["property uchar red", "property uchar green", "property uchar blue"]

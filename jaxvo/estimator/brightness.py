@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.camera import Camera
-from jaxvo.pyramid import Level
-from jaxvo.residuals import RefPoints, residuals
+from jaxvo.estimator.pyramid import Level
+from jaxvo.estimator.residuals import RefPoints, residuals
 
 __all__ = ["fit_offset", "apply", "masked_median"]
 
@@ -54,7 +54,7 @@ def masked_median(x, mask):
     midpoint, keep the half that holds it), then snapped to the largest value at or below the
     upper end: O(N) per step and no sort. XLA's CPU sort made ``jnp.nanmedian`` of the ~8500
     points of a level cost 1.1 ms; these 40 steps for both middle values cost 0.2 ms.
-    (:func:`jaxvo.solvers.robust_scale` reads the Huber scale's median of |r| off a histogram
+    (:func:`jaxvo.estimator.solvers.robust_scale` reads the Huber scale's median of |r| off a histogram
     instead, to a bin's width; the offset is compared with thresh_lum / 3 and shifts every
     reference pixel, and this one reproduces the ``jnp.nanmedian`` the offset was measured with.)"""
     n = jnp.sum(mask)

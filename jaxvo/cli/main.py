@@ -1,7 +1,7 @@
 """The ``jaxvo`` command line: ``run``, ``eval``, ``gt``, ``synth``, ``augment``, ``demo``, ``map``.
 
-Argument parsing and printing only: the work is done by the library (:mod:`jaxvo.runner`,
-:mod:`jaxvo.evaluation`, :mod:`jaxvo.demo`, :mod:`jaxvo.synthetic`, :mod:`jaxvo.mapping`).
+Argument parsing and printing only: the work is done by the library (:mod:`jaxvo.pipelines.run`,
+:mod:`jaxvo.evaluation.report`, :mod:`jaxvo.pipelines.demo`, :mod:`jaxvo.synthetic`, :mod:`jaxvo.pipelines.mapping`).
 
 Every command reports bad input (missing or malformed files, undecodable images, a
 depth image that is not 16-bit, no colour/depth association, ground truth that does
@@ -23,17 +23,17 @@ from typing import Callable, Optional
 import click
 import numpy as np
 
-from jaxvo import cache
+from jaxvo.runtime import cache
 from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
-from jaxvo.datasets import DatasetError
-from jaxvo.demo import fmt, parse_size, progress_bar, run_demo
-from jaxvo.evaluation import evaluate, trajectory_errors
-from jaxvo.hindsight import OFFSETS as HINDSIGHT_OFFSETS, HindsightParams
-from jaxvo.outputs import check_output, check_output_folder, finish, partial_path
-from jaxvo.runner import (RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence,
+from jaxvo.data.sequences import DatasetError
+from jaxvo.pipelines.demo import fmt, parse_size, progress_bar, run_demo
+from jaxvo.evaluation.report import evaluate, trajectory_errors
+from jaxvo.tracking.hindsight import OFFSETS as HINDSIGHT_OFFSETS, HindsightParams
+from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path
+from jaxvo.pipelines.run import (RunResult, load_config, load_sequence, read_run_settings, resolve_camera, run_sequence,
                           run_sequences)
 
-# run_sequence, evaluate, ... live in jaxvo.runner / jaxvo.evaluation; the names stay importable from here
+# run_sequence, evaluate, ... live in jaxvo.pipelines.run / jaxvo.evaluation.report; the names stay importable from here
 __all__ = ["main", "RunResult", "run_sequence", "load_config", "resolve_camera", "evaluate", "run_demo"]
 
 CONVENTIONS = """\b
@@ -92,7 +92,7 @@ def _handle_errors(f):
 
 def _compilation_cache(f):
     """Options --cache-dir / --no-cache of a command that compiles the estimator; switches on JAX's
-    persistent compilation cache (:mod:`jaxvo.cache`) before the command runs."""
+    persistent compilation cache (:mod:`jaxvo.runtime.cache`) before the command runs."""
     @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
                   help="Folder of JAX's persistent compilation cache: a later run skips compilation. "
                        f"[default: ${cache.ENV}, else $XDG_CACHE_HOME/jaxvo or ~/.cache/jaxvo; "
@@ -256,7 +256,7 @@ def _pose_count(path) -> int:
 
 def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
                  segment: Optional[bool] = None):
-    """:class:`jaxvo.odometry.TrackConfig` from the CLI's options on top of ``base`` (default
+    """:class:`jaxvo.estimator.motion.TrackConfig` from the CLI's options on top of ``base`` (default
     ``TrackConfig()``, jaxvo's segmented keyframes): ``--frame-to-frame`` (the paper's chaining),
     ``--keyframe-gap`` / ``--keyframe-lag`` (lag defaults to gap // 2; None keeps base's; a gap
     turns off the calm frame-to-frame mode),
@@ -315,8 +315,8 @@ def main():
 
 def _note_other_machine(config_file, settings) -> None:
     """Say so when ``--config TRAJ`` reruns a trajectory that another machine wrote (its
-    ``# machine:`` header, :mod:`jaxvo.machine`): the rerun may then differ at float rounding."""
-    from jaxvo import machine
+    ``# machine:`` header, :mod:`jaxvo.runtime.machine`): the rerun may then differ at float rounding."""
+    from jaxvo.runtime import machine
 
     recorded = settings.get("machine")
     if recorded is None:
@@ -359,7 +359,7 @@ RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long
 (m/s, deg/s), and ATE (m, after alignment).
 
 Pairs i -> i+1 use the random key jax.random.fold_in(jax.random.key(SEED), i), exactly as
-jaxvo.odometry.track does, so the CLI and the library give identical trajectories.
+jaxvo.tracking.odometry.track does, so the CLI and the library give identical trajectories.
 
 Several SEQUENCE_DIRs (or a folder holding sequence folders) are tracked together: sequences
 of the same image size run as one batch (their estimates jax.vmap'd in lockstep, spread over
@@ -367,7 +367,7 @@ the available devices with jax.sharding; each keeps its own keyframes and segmen
 key of SEED), so the batch compiles once. Each sequence's trajectory goes to
 OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line.
 A batched pose equals the sequence's pose alone up to float rounding of the batched program
-(robust steps can turn that into ~1 mm, see jaxvo.batch).
+(robust steps can turn that into ~1 mm, see jaxvo.tracking.batch).
 
 {CONVENTIONS}
 """)
@@ -536,7 +536,7 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
 def _expand_sequences(paths) -> list:
     """The sequence folders named on the command line: each path as it is, except a folder that is
     not a sequence itself but holds sequence folders (rgb.txt + depth.txt), which stands for them."""
-    from jaxvo.datasets import _is_sequence_dir, find_sequences, open_sequence
+    from jaxvo.data.sequences import _is_sequence_dir, find_sequences, open_sequence
 
     dirs = []
     for p in paths:
@@ -552,7 +552,7 @@ def _expand_sequences(paths) -> list:
 
 
 def _run_many(seqs, config, seed, policy, out_dir, inputs, force, no_progress):
-    """Several sequences: one batch per image size (:func:`jaxvo.runner.run_sequences`), a
+    """Several sequences: one batch per image size (:func:`jaxvo.pipelines.run.run_sequences`), a
     trajectory per sequence in ``out_dir`` and one summary line each."""
     names = [seq.name for seq in seqs]
     outs = [out_dir / (f"{n}.txt" if names.count(n) == 1 else f"{n}-{k}.txt") for k, n in enumerate(names)]
@@ -934,8 +934,8 @@ poses first, as jaxvo eval does. Then evo gives jaxvo eval's numbers:
               help="Force / forbid the Bonn marker-to-camera conversion. [default: by folder name]")
 @_handle_errors
 def gt_cmd(sequence_dir, out, bonn):
-    from jaxvo.datasets import open_sequence
-    from jaxvo.trajectory import HEADER, write_tum_trajectory
+    from jaxvo.data.sequences import open_sequence
+    from jaxvo.data.trajectory import HEADER, write_tum_trajectory
 
     seq = open_sequence(sequence_dir, bonn=bonn, camera=DEFAULT)  # intrinsics are not needed here
     gt = seq.groundtruth
@@ -971,8 +971,8 @@ def _read_trajectory(traj):
     'jaxvo run' marked held (its estimate failed and the previous pose was kept: a guess) are left
     out. DatasetError when the file is missing or has no pose. A ground-truth file may repeat a
     timestamp (TUM's tools keep the first); an estimate may not."""
-    from jaxvo.datasets import read_pose_file
-    from jaxvo.trajectory import read_held
+    from jaxvo.data.sequences import read_pose_file
+    from jaxvo.data.trajectory import read_held
 
     if not Path(traj).is_file():
         raise DatasetError(f"{traj}: trajectory file not found")
@@ -1028,8 +1028,8 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @_handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
             hindsight, no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
-    from jaxvo.mapping import build_map, render_preview, write_ply
-    from jaxvo.odometry import Config
+    from jaxvo.pipelines.mapping import build_map, render_preview, write_ply
+    from jaxvo.config import Config
 
     if use_masks + hindsight + no_labels > 1:
         raise _Fail("--use-masks, --hindsight and --no-labels exclude each other")
@@ -1093,7 +1093,7 @@ written by 'jaxvo run') whose timestamps are matched to the frames within --max-
 Frames without a pose, and those whose pose 'jaxvo run' marked held (its estimate failed and
 the previous pose was kept: a guess), get no mask and serve as no other frame's view.
 Each frame with a pose is compared with the frames --offsets away, before and after it, at
-the trajectory's relative poses (jaxvo.hindsight): a pixel is moving when, in at least
+the trajectory's relative poses (jaxvo.tracking.hindsight): a pixel is moving when, in at least
 --ratio of the frames that see it (not hidden behind something nearer), its depth or its
 luminance changed (beyond the inlier thresholds, the depth's growing with z^2, the pair's
 exposure offset and the image gradient); a 3-D region at least --region-ratio of whose pixels move is flagged
@@ -1131,9 +1131,9 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
     import cv2
 
     from jaxvo.config import Config
-    from jaxvo.hindsight import sequence_masks
-    from jaxvo.mapping import match_trajectory
-    from jaxvo.runner import stamp_name
+    from jaxvo.tracking.hindsight import sequence_masks
+    from jaxvo.pipelines.mapping import match_trajectory
+    from jaxvo.pipelines.run import stamp_name
 
     try:
         offset_list = [int(o) for o in offsets.split(",") if o.strip()]

@@ -1,4 +1,4 @@
-"""Many sequences as one batch: the estimates of several :class:`jaxvo.odometry.Odometry` runs
+"""Many sequences as one batch: the estimates of several :class:`jaxvo.tracking.odometry.Odometry` runs
 in lockstep, one ``jax.vmap``'d call per frame index, spread over the available devices.
 
 Each sequence keeps its own host-side policy (reference choice, segmentation, held poses:
@@ -7,7 +7,7 @@ batch has a fixed size for the whole run (the number of sequences rounded up to 
 the device count; a finished sequence's slot repeats another slot's inputs and its result is
 dropped), so the batched program compiles once. Sequences must share the image size; the
 cameras may differ (their intrinsics are vmapped). Each sequence gets exactly the keys of
-:func:`jaxvo.odometry.track`, so its result equals the sequence run alone up to the
+:func:`jaxvo.tracking.odometry.track`, so its result equals the sequence run alone up to the
 floating-point differences of the batched program (tests/test_batch.py).
 """
 from __future__ import annotations
@@ -21,8 +21,9 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.odometry import MotionEstimate, Odometry, PairInputs, Track, _estimate, _estimate_args
-from jaxvo.solvers import jit
+from jaxvo.estimator.motion import MotionEstimate, _estimate, _estimate_args
+from jaxvo.tracking.odometry import Odometry, PairInputs, Track
+from jaxvo.estimator.solvers import jit
 
 __all__ = ["batch_size", "estimate_batch", "track_batch"]
 
@@ -48,7 +49,7 @@ def estimate_batch(pairs: Sequence[PairInputs], cameras: Sequence[Camera], confi
 
     ``size``: the batch size to run (>= len(pairs), a multiple of the device count; default
     :func:`batch_size`); missing slots repeat the first pair and are dropped. Inputs are checked
-    as :func:`jaxvo.odometry.estimate_motion` checks them (ValueError naming the problem).
+    as :func:`jaxvo.estimator.motion.estimate_motion` checks them (ValueError naming the problem).
     Returns one :class:`MotionEstimate` per pair.
     """
     if not pairs:
@@ -76,12 +77,12 @@ def estimate_batch(pairs: Sequence[PairInputs], cameras: Sequence[Camera], confi
 def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config: Optional[Config] = None,
                 keys=None, policy: Optional[TrackConfig] = None,
                 callbacks: Optional[Sequence[Optional[Callable]]] = None) -> List[Track]:
-    """:func:`jaxvo.odometry.track` of several sequences at once, their estimates batched.
+    """:func:`jaxvo.tracking.odometry.track` of several sequences at once, their estimates batched.
 
     sequences: iterables of :class:`jaxvo.frame.Frame` (lazy is fine), all of one image size;
     cameras: one per sequence; keys: one ``jax.random`` key per sequence (default
     ``jax.random.key(0)`` each); ``policy``: the :class:`TrackConfig` of every sequence;
-    ``callbacks[s](step)`` is called with each :class:`jaxvo.odometry.TrackStep` of sequence s
+    ``callbacks[s](step)`` is called with each :class:`jaxvo.tracking.odometry.TrackStep` of sequence s
     (frames >= 1). Returns one :class:`Track` per sequence.
     """
     n = len(sequences)

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from jaxvo.camera import Camera, backproject
 from jaxvo.geometry import transform_points
-from jaxvo.pyramid import Level, flat_offset, level_size
+from jaxvo.estimator.pyramid import Level, flat_offset, level_size
 
 __all__ = ["RefPoints", "Residuals", "reference_points", "select_points", "gather_points", "warp", "sample_bilinear",
            "sample_nearest", "residuals", "warp_jacobian", "photometric_terms", "rgbd_terms",
@@ -119,7 +119,7 @@ def gather_points(level: Level, camera: Camera, u_idx, v_idx) -> RefPoints:
     ui = jnp.clip(u_idx, 0, w - 1)
     vi = jnp.clip(v_idx, 0, h - 1)
 
-    def at(x):  # a stacked level (jaxvo.pyramid.stack_padded) reads its own entry
+    def at(x):  # a stacked level (jaxvo.estimator.pyramid.stack_padded) reads its own entry
         return x[vi, ui] if x.ndim == 2 else x[level.size[0], vi, ui]
     z = at(level.depth)
     uf, vf = ui.astype(jnp.float32), vi.astype(jnp.float32)
@@ -150,8 +150,8 @@ def sample_bilinear(images, u, v, offset=0):
 
     Coordinates outside the image are clamped; callers mask them with their own
     inside test. Pixel centres at integers. ``images`` may also be (n, h, w, C) levels stacked
-    by :func:`jaxvo.pyramid.stack_padded`, ``offset`` the sampled entry's first pixel
-    (:func:`jaxvo.pyramid.flat_offset`); there a point on the image's last row or column reads
+    by :func:`jaxvo.estimator.pyramid.stack_padded`, ``offset`` the sampled entry's first pixel
+    (:func:`jaxvo.estimator.pyramid.flat_offset`); there a point on the image's last row or column reads
     the pad with weight 0: the same value.
     """
     h, w = images.shape[-3:-1]

@@ -1,0 +1,1 @@
+"""The ``jaxvo`` command line: options, one library call, printing."""

@@ -1,0 +1,1 @@
+"""Recordings on disk: sequence readers, calibration, masks, TUM trajectories, safe outputs."""

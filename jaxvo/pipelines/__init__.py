@@ -1,0 +1,1 @@
+"""What each command does, callable from Python: run sequences, maps, hindsight masks, the demo."""

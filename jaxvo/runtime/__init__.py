@@ -1,0 +1,1 @@
+"""Internal: the persistent compilation cache, exported programs and the machine record (not public API)."""

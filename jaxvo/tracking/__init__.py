@@ -1,0 +1,1 @@
+"""Frames in, poses out: Odometry / track, the keyframe policy, the static/dynamic segmentation, batches."""
