@@ -19,7 +19,7 @@ from jaxvo import geometry
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
 from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.estimator import estimate_motion, trace_count
 from jaxvo.tracking.odometry import track
 from jaxvo.synthetic import make_person, make_room, render
 from jaxvo.synthetic.motions import _T, rot_y
@@ -355,7 +355,7 @@ def test_sample_gate_drops_pixels_something_stepped_in_front_of():
     """RANSAC's sample centres skip reference pixels whose depth residual at the starting pose
     exceeds Config.sample_gate (an occluder that arrived after the reference), and the gate
     stands down when it would leave fewer than 10 % of the trusted pixels."""
-    from jaxvo.estimator.motion import _gated
+    from jaxvo.estimator.levels import _gated
     from jaxvo.estimator.pyramid import build_pyramid
     cam = DEFAULT.at_level(2)
     h, w = cam.height, cam.width
@@ -420,7 +420,7 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
     levels 3-2 (every pixel: 4800 and 19200 points, so level 3's point list and scoring grid are
     padded), and with the (4, 2, 1, 1) tiles [3], [2, 1], [0] (level 3's 4800 points padded to
     19200 would be 23 %). Classic and Huber run per level."""
-    from jaxvo.estimator.motion import _level_groups
+    from jaxvo.estimator.levels import _level_groups
     assert _level_groups(Config(), 4, 640, 480) == [[3, 2, 1], [0]]
     assert _level_groups(Config.paper(), 4, 640, 480) == [[3, 2], [1], [0]]
     assert _level_groups(Config(blocks=(4, 2, 1, 1)), 4, 640, 480) == [[3], [2, 1], [0]]
@@ -443,10 +443,10 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
 def test_pixel_counts_are_the_sums_of_the_masks():
     """The estimator's and the map's pixel counts come from one variadic reduction: the same
     integers as a jnp.sum per mask, for 1-D and 2-D masks."""
-    from jaxvo.estimator.motion import _pixel_counts
+    from jaxvo.estimator import pixel_counts
     rng = np.random.default_rng(3)
     for shape in ((307,), (48, 64)):
         masks = [jnp.asarray(rng.random(shape) < p) for p in (0.0, 0.2, 0.5, 1.0)]
-        counts = _pixel_counts(*masks)
+        counts = pixel_counts(*masks)
         assert [int(c) for c in counts] == [int(jnp.sum(m)) for m in masks]
         assert all(c.dtype == jnp.int32 for c in counts)

@@ -15,7 +15,7 @@ from jaxvo import geometry
 from jaxvo.tracking import segmentation as S
 from jaxvo.camera import DEFAULT, Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import trace_count
+from jaxvo.estimator import trace_count
 from jaxvo.tracking.odometry import Odometry, track
 from jaxvo.synthetic import make_sequence
 

@@ -13,8 +13,7 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame
-from jaxvo.estimator.motion import (MotionEstimate, _checked_key, _checked_settings, _float32, _pixel_counts,
-                                    estimate_motion)
+from jaxvo.estimator import MotionEstimate, as_float32, checked_config, checked_key, estimate_motion, pixel_counts
 from jaxvo.runtime import aot
 from jaxvo.tracking import segmentation
 
@@ -87,7 +86,7 @@ def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
     the current frame does not hide (``occluded_mask``), inlier ratio over those)."""
     trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
     seen = valid_mask & trusted & ~occluded_mask
-    valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = _pixel_counts(
+    valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = pixel_counts(
         valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted, seen, inlier_mask & seen)
     return (inl_trusted / jnp.maximum(valid_trusted, 1), valid_untrusted / jnp.maximum(valid, 1),
             n_seen / jnp.maximum(valid, 1), inl_seen / jnp.maximum(n_seen, 1))
@@ -241,12 +240,12 @@ class Odometry:
     def __init__(self, camera: Camera, config: Optional[Config] = None, key=None, policy: Optional[TrackConfig] = None,
                  T_world_first=None, segment_params: Optional[segmentation.SegmentParams] = None):
         self.camera = camera
-        self.config = _checked_settings(config, camera)
+        self.config = checked_config(config, camera)
         self.policy = TrackConfig() if policy is None else policy
         if not isinstance(self.policy, TrackConfig):
             raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
         self.policy.validate()
-        self.key = _checked_key(key)
+        self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self._map_cam = camera.at_level(segmentation.MAP_LEVEL)
         self._first = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
@@ -290,7 +289,7 @@ class Odometry:
         j = len(self.poses)
         self._frames[j] = frame
         if self.policy.segment:
-            self._depths[j], self._cues[j] = _map_inputs(_float32(frame.intensity), _float32(frame.depth),
+            self._depths[j], self._cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
                                                          self.config.max_depth)
         if j == 0:
             self.poses.append(self._first)
@@ -340,11 +339,11 @@ class Odometry:
                 # and everything computed from it, the estimate's weights included, so the map's
                 # programs and the estimator would each compile a second time
                 unexplained = np.asarray(_unexplained(est.inlier_mask, est.valid_mask, occluded, self._L.shape))
-                self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T), unexplained,
+                self._L = _update_map(self._L, self._depths[ref], self._depths[j], as_float32(T), unexplained,
                                       self._map_cam, self.params)
                 if self._tested < _CUE_AHEAD <= j - ref and self._cue_cam.width >= _CUE_MIN_WIDTH:
                     self._L, self._flags = _later_motion_test(self._L, self._flags, self._depths[ref], self._cues[ref],
-                                                              self._cues[j], _float32(T), self._map_cam, self.params,
+                                                              self._cues[j], as_float32(T), self._map_cam, self.params,
                                                               self._cue_cam)
                     self._tested = j - ref
         result = TrackStep(j, ref, est, pose, valid, static_mask)
