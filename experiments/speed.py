@@ -378,7 +378,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
     and the carried segmentation), after a warm-up pass over the same frames compiled everything,
     and the time spent in the segmentation's map updates (wrapped and blocked on)."""
 
-    from jaxvo.tracking import odometry
+    from jaxvo.tracking import static_map
     from jaxvo.tracking.odometry import Odometry
     from jaxvo.config import TrackConfig
 
@@ -396,8 +396,8 @@ def time_default(paths, frames_n: int, peer_ms, key):
             for f in frames[2:]:
                 odo.add(f)
             spent = {"map update": [], "new reference map": [], "later motion test": []}
-            originals = {"map update": odometry._update_map, "new reference map": odometry._new_reference_map,
-                         "later motion test": odometry._later_motion_test}
+            originals = {"map update": static_map._update_map, "new reference map": static_map._new_reference_map,
+                         "later motion test": static_map._later_motion_test}
 
             def wrap(name):
                 fn = originals[name]
@@ -408,7 +408,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
                     spent[name].append(time.perf_counter() - t)
                     return out
                 return timed
-            odometry._update_map, odometry._new_reference_map, odometry._later_motion_test = (
+            static_map._update_map, static_map._new_reference_map, static_map._later_motion_test = (
                 wrap("map update"), wrap("new reference map"), wrap("later motion test"))
             try:
                 odo = Odometry(seq.camera, Config(), key, policy)
@@ -418,7 +418,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
                     odo.add(f)
                     secs.append(time.perf_counter() - t)
             finally:
-                odometry._update_map, odometry._new_reference_map, odometry._later_motion_test = (
+                static_map._update_map, static_map._new_reference_map, static_map._later_motion_test = (
                     originals["map update"], originals["new reference map"], originals["later motion test"])
             st = common.timing_stats(secs[1:])
             n = len(frames) - 1
