@@ -211,6 +211,9 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
 
 
 def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Config, key, T_init, ref_weight):
+    """The whole estimate of one pair -> :class:`MotionEstimate`; the arguments are the fields of
+    :class:`jaxvo.estimator.inputs.EstimateArgs`, in its order. Traced once per image shape and
+    static config (:func:`trace_count`)."""
     _TRACES["count"] += 1
     h, w = ref_int.shape
     L = num_levels(config, w, h)
