@@ -192,9 +192,9 @@ def median_ms_per_call(functions: Sequence[Callable], inputs: Sequence[tuple], r
 
 
 def estimator_shapes(camera, config: Config) -> tuple:
-    """Abstract arguments of ``jaxvo.estimator.motion._estimate_jit`` for ``camera``'s image size (float32
+    """Abstract arguments of ``jaxvo.estimator.estimate_arrays_jit`` for ``camera``'s image size (float32
     images, key 0, a (4, 4) initial pose and full-resolution weights), to trace and compile it
-    without frames: ``_estimate_jit.trace(*estimator_shapes(camera, config)).lower()``."""
+    without frames: ``estimate_arrays_jit.trace(*estimator_shapes(camera, config)).lower()``."""
     import jax.numpy as jnp
 
     img = jax.ShapeDtypeStruct((camera.height, camera.width), jnp.float32)

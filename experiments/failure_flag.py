@@ -14,7 +14,7 @@ are 5 s apart), synthetic renders of the default room (jaxvo.synthetic) with the
 by known small and large steps (overlapping, barely overlapping, turned away).
 
 Reports precision and recall of "invalid" (positive class: should be invalid), per category
-counts, and the statistics the flag is decided on (:class:`jaxvo.estimator.motion.TrustStats`).
+counts, and the statistics the flag is decided on (:class:`jaxvo.estimator.TrustStats`).
 
     python experiments/failure_flag.py            # writes experiments/results/failure_flag.{md,json}
 """
@@ -36,7 +36,7 @@ from jaxvo import geometry  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
-from jaxvo.estimator.motion import estimate_motion, explain_validity  # noqa: E402
+from jaxvo.estimator import estimate_motion, explain_validity  # noqa: E402
 
 NO_MOTION = ("mirrored", "unrelated", "noise", "textureless")
 # the rule before the agreement statistics: an inlier ratio of at least 0.2 (the default then)

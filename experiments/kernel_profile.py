@@ -52,7 +52,7 @@ import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
-from jaxvo.estimator.motion import _estimate, _estimate_args  # noqa: E402
+from jaxvo.estimator import estimate_args, estimate_arrays  # noqa: E402
 from jaxvo.estimator.solvers import COMPILER_OPTIONS  # noqa: E402
 from speed import DYNAMIC, STATIC, load_pairs  # noqa: E402
 
@@ -167,9 +167,9 @@ def kernel_times(trace_dir: Path, names) -> Tuple[Dict[str, float], Dict[str, in
 
 def profile_set(name: str, seq, frames, pairs, config: Config, repeats: int, top: int) -> dict:
     options = {**COMPILER_OPTIONS, "xla_cpu_enable_xprof_traceme": True}
-    fn = jax.jit(_estimate, compiler_options=options)
-    plain = jax.jit(_estimate, compiler_options=COMPILER_OPTIONS)
-    inputs = [_estimate_args(frames[a], frames[b], seq.camera, config, jax.random.key(k), None, None)
+    fn = jax.jit(estimate_arrays, compiler_options=options)
+    plain = jax.jit(estimate_arrays, compiler_options=COMPILER_OPTIONS)
+    inputs = [estimate_args(frames[a], frames[b], seq.camera, config, jax.random.key(k), None, None)
               for k, (a, b) in enumerate(pairs)]
     sources = kernel_sources(fn.lower(*inputs[0]).compile().as_text())
     wall = dict(zip(("plain", "annotated"), common.median_ms_per_call((plain, fn), inputs, repeats)))

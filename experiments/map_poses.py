@@ -2,7 +2,7 @@
 
 Each new reference of the default odometry is tested for motion against an earlier frame
 (:func:`jaxvo.tracking.segmentation.motion_regions`) at the pose between the two that the odometry
-chained (``Odometry._view_pose``). Where persons the map has not found yet pull the first
+chained (``Odometry.view_pose``). Where persons the map has not found yet pull the first
 estimates, that pose is centimetres off, and parallax then moves the nearest static objects in
 the test as if they walked. This script runs the default odometry with that one pose taken from
 elsewhere, everything else unchanged:
@@ -65,11 +65,11 @@ def parse_args(argv=None):
 
 @contextlib.contextmanager
 def view_poses(variant: str, T_world_cam_true: Optional[np.ndarray] = None, frames: Optional[list] = None):
-    """Within the block, ``Odometry._view_pose`` gives ``variant``'s pose (T_view_new, float32).
+    """Within the block, ``Odometry.view_pose`` gives ``variant``'s pose (T_view_new, float32).
 
     T_world_cam_true: (N, 4, 4) ground-truth camera-to-world poses of the frames ("true").
     frames: the sequence's frames ("re-estimated-full")."""
-    chained = odometry.Odometry._view_pose
+    chained = odometry.Odometry.view_pose
 
     def true(self, view, new, T_world_new):
         return (geometry.inverse(T_world_cam_true[view]) @ T_world_cam_true[new]).astype(np.float32)
@@ -79,19 +79,20 @@ def view_poses(variant: str, T_world_cam_true: Optional[np.ndarray] = None, fram
         if full:
             ref, other, camera = frames[new], frames[view], self.camera
         else:
-            (ref_int, ref_depth), (view_int, view_depth) = self._cues[new], self._cues[view]
+            cues = self.static_map.cues
+            (ref_int, ref_depth), (view_int, view_depth) = cues[new], cues[view]
             ref, other = Frame(np.asarray(ref_int), np.asarray(ref_depth)), Frame(np.asarray(view_int), np.asarray(view_depth))
-            camera = self._cue_cam
+            camera = self.static_map.cue_camera
         # a key of its own, apart from every frame's estimate (those fold in j - 1 < 10**6)
         est = odometry.estimate_motion(ref, other, camera, Config(), jax.random.fold_in(self.key, 10 ** 6 + new), init=T0)
         return np.asarray(est.T_cur_ref, np.float32) if bool(est.valid) else T0
 
-    odometry.Odometry._view_pose = {"chained": chained, "true": true, "re-estimated": re_estimated,
-                                    "re-estimated-full": lambda *a: re_estimated(*a, full=True)}[variant]
+    odometry.Odometry.view_pose = {"chained": chained, "true": true, "re-estimated": re_estimated,
+                                   "re-estimated-full": lambda *a: re_estimated(*a, full=True)}[variant]
     try:
         yield
     finally:
-        odometry.Odometry._view_pose = chained
+        odometry.Odometry.view_pose = chained
 
 
 def main(argv: Optional[Sequence[str]] = None) -> dict:
@@ -124,7 +125,7 @@ def _scores(tp, fp, fn) -> tuple:
 def write(a, argv, rows: List[dict], total_s: float) -> None:
     lines = common.provenance_md("Moving masks with other poses for the motion test", "experiments/map_poses.py", argv)
     lines += ["", f"The default odometry (`jaxvo.track`, `TrackConfig()`) with the pose of each new reference's "
-              f"motion test against its earlier view (`Odometry._view_pose`) from the chained estimates "
+              f"motion test against its earlier view (`Odometry.view_pose`) from the chained estimates "
               f"(*chained*, the library's), from the ground truth (*true*), or re-estimated by RANSAC between the "
               f"two frames' motion-test images (*re-estimated*, 160x120) or the frames themselves "
               f"(*re-estimated-full*); everything else unchanged. Seeds "

@@ -41,7 +41,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 from jaxvo.config import METHODS, Config
-from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.estimator import estimate_motion, trace_count
 from jaxvo.tracking.odometry import track  # noqa: E402
 from jaxvo.estimator.solvers import jit  # noqa: E402
 
@@ -237,7 +237,8 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     end-to-end time minus the sum (the final masks and statistics, dispatch and fusion
     effects of running the stages as separate programs).
     """
-    from jaxvo.estimator.motion import _block, _levels
+    from jaxvo.estimator.inputs import num_levels
+    from jaxvo.estimator.levels import level_block
     from jaxvo.estimator.pyramid import build_pyramid
     from jaxvo.estimator.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose, score_weights
     from jaxvo.estimator.residuals import reference_points, residuals, select_points
@@ -300,7 +301,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     fns: dict = {}
     for set_name, (seq, frames, pairs) in sets.items():
         cam = seq.camera
-        L = _levels(cfg, cam.width, cam.height)
+        L = num_levels(cfg, cam.width, cam.height)
         if ("pyramid", L) not in fns:
             fns["pyramid", L] = jit(lambda i, d: build_pyramid(i, d, L, cfg.max_depth, jnp.ones_like(i)))
         pyr = fns["pyramid", L]
@@ -330,7 +331,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                 hh, ww = rl.depth.shape
                 if (lv, hh, ww) not in fns:
                     stride = max(1, int(np.ceil(np.sqrt(hh * ww / cfg.max_score_pixels))))
-                    fns[lv, hh, ww] = stage_functions(stride, _block(cfg, lv))
+                    fns[lv, hh, ww] = stage_functions(stride, level_block(cfg, lv))
                 f = {name: functools.partial(fn, lc=lc) for name, fn in fns[lv, hh, ww].items()}
                 add(lv, "points", _timed(f["points"], rl, repeats=repeats))
                 pts, sp = f["points"](rl)
@@ -377,7 +378,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
     and the carried segmentation), after a warm-up pass over the same frames compiled everything,
     and the time spent in the segmentation's map updates (wrapped and blocked on)."""
 
-    from jaxvo.tracking import odometry
+    from jaxvo.tracking import static_map
     from jaxvo.tracking.odometry import Odometry
     from jaxvo.config import TrackConfig
 
@@ -395,8 +396,8 @@ def time_default(paths, frames_n: int, peer_ms, key):
             for f in frames[2:]:
                 odo.add(f)
             spent = {"map update": [], "new reference map": [], "later motion test": []}
-            originals = {"map update": odometry._update_map, "new reference map": odometry._new_reference_map,
-                         "later motion test": odometry._later_motion_test}
+            originals = {"map update": static_map._update_map, "new reference map": static_map._new_reference_map,
+                         "later motion test": static_map._later_motion_test}
 
             def wrap(name):
                 fn = originals[name]
@@ -407,7 +408,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
                     spent[name].append(time.perf_counter() - t)
                     return out
                 return timed
-            odometry._update_map, odometry._new_reference_map, odometry._later_motion_test = (
+            static_map._update_map, static_map._new_reference_map, static_map._later_motion_test = (
                 wrap("map update"), wrap("new reference map"), wrap("later motion test"))
             try:
                 odo = Odometry(seq.camera, Config(), key, policy)
@@ -417,7 +418,7 @@ def time_default(paths, frames_n: int, peer_ms, key):
                     odo.add(f)
                     secs.append(time.perf_counter() - t)
             finally:
-                odometry._update_map, odometry._new_reference_map, odometry._later_motion_test = (
+                static_map._update_map, static_map._new_reference_map, static_map._later_motion_test = (
                     originals["map update"], originals["new reference map"], originals["later motion test"])
             st = common.timing_stats(secs[1:])
             n = len(frames) - 1

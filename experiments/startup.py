@@ -134,7 +134,7 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
     import numpy as np
 
     from jaxvo.config import Config
-    from jaxvo.estimator.motion import _estimate_args, _estimate_jit
+    from jaxvo.estimator import estimate_args, estimate_arrays_jit
     from jaxvo.estimator.solvers import COMPILER_OPTIONS
 
     s = common.open_sequence(seq, max_frames=pairs + 1)
@@ -144,7 +144,7 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
         config = _config(method)
         args = common.estimator_shapes(s.camera, config)
         t0 = time.perf_counter()
-        traced = _estimate_jit.trace(*args)
+        traced = estimate_arrays_jit.trace(*args)
         t1 = time.perf_counter()
         lowered = traced.lower()
         t2 = time.perf_counter()
@@ -160,7 +160,7 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
                          "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines, "fusions": fusions})
             print(f"{method:8s} {'whole estimator' + label}: trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  "
                   f"XLA compile {t4 - t3:.2f} s (cpu {c4 - c3:.2f} s)  {lines} lines, {fusions} fusions", flush=True)
-        inputs = [_estimate_args(a, b, s.camera, config, jax.random.key(k), None, None)
+        inputs = [estimate_args(a, b, s.camera, config, jax.random.key(k), None, None)
                   for k, (a, b) in enumerate(zip(frames[:-1], frames[1:]))]
         for row, ms in zip(rows[-len(programs):], common.median_ms_per_call(programs, inputs, repeats)):
             row["pair_ms"] = ms
@@ -249,12 +249,12 @@ def codegen_child(seq: Path, hlo_out: Path) -> None:
     import jax
 
     from jaxvo.config import Config
-    from jaxvo.estimator.motion import _estimate_jit
+    from jaxvo.estimator import estimate_arrays_jit
     from jaxvo.estimator.solvers import COMPILER_OPTIONS
 
     jax.config.update("jax_enable_compilation_cache", False)
     camera = common.open_sequence(seq, max_frames=2).camera
-    lowered = _estimate_jit.trace(*common.estimator_shapes(camera, Config())).lower()
+    lowered = estimate_arrays_jit.trace(*common.estimator_shapes(camera, Config())).lower()
     print("jaxvo-codegen-start", file=sys.stderr, flush=True)
     compiled = lowered.compile(COMPILER_OPTIONS)
     print("jaxvo-codegen-end", file=sys.stderr, flush=True)
@@ -367,7 +367,7 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
               for r in rows]
     if stages:
         lines += ["", "## Where the first compilation goes", "",
-                  "The estimator alone (`jaxvo.estimator.motion._estimate_jit`) at the sequence's image size, in one "
+                  "The estimator alone (`jaxvo.estimator.estimate_arrays_jit`) at the sequence's image size, in one "
                   "process with no cache: `jit(...).trace`, `.lower` (for the parts: both), `.compile` (XLA) "
                   "timed separately; `cpu`: CPU seconds of the whole process during the XLA compilation (less "
                   "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "

@@ -2,7 +2,7 @@
 
 Each variant is a set of ``Config`` fields changed from the default (``--variants`` JSON: name ->
 fields; the first is the baseline). For each method in ``--methods`` (a variant that sets
-``method`` itself runs once) and each variant, the estimator (``jaxvo.estimator.motion._estimate_jit``)
+``method`` itself runs once) and each variant, the estimator (``jaxvo.estimator.estimate_arrays_jit``)
 at 640x480: the XLA compilation of the first call (``.lower`` then ``.compile`` timed alone,
 wall and CPU seconds, lines of the lowered StableHLO), then the wall time per pair on pairs
 spread over a static (TUM fr2/desk) and a dynamic (Bonn crowd) sequence, the variants timed in
@@ -26,7 +26,7 @@ import common  # noqa: F401  (sys.path for jaxvo)
 import jax  # noqa: E402
 
 from jaxvo.config import METHODS, Config  # noqa: E402
-from jaxvo.estimator.motion import _estimate_jit, estimate_motion  # noqa: E402
+from jaxvo.estimator import estimate_arrays_jit, estimate_motion  # noqa: E402
 
 DEFAULT_VARIANTS = '{"scan": {}, "per level": {"scan_levels": false}}'
 SETS = (("static", "rgbd_dataset_freiburg2_desk"), ("dynamic", "rgbd_bonn_crowd"))
@@ -63,7 +63,7 @@ def parse_variants(text: str) -> dict:
 
 
 def compile_stats(config: Config, camera) -> dict:
-    lowered = _estimate_jit.trace(*common.estimator_shapes(camera, config)).lower()
+    lowered = estimate_arrays_jit.trace(*common.estimator_shapes(camera, config)).lower()
     t0, c0 = time.perf_counter(), time.process_time()
     lowered.compile()
     return {"compile_s": time.perf_counter() - t0, "compile_cpu_s": time.process_time() - c0,
@@ -133,7 +133,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     lines = header + [
         "Variants (Config fields changed from the default; the first is the baseline of `ratio` and "
         f"`max abs dT`): `{json.dumps(variants)}`.", "",
-        "XLA compile: `_estimate_jit(...).lower(...).compile()` of the estimator at 640x480 alone (wall and "
+        "XLA compile: `estimate_arrays_jit(...).lower(...).compile()` of the estimator at 640x480 alone (wall and "
         "CPU s; lines: the lowered StableHLO). Per pair: median wall time of `estimate_motion` (blocked) over "
         f"{args.pairs} static (fr2/desk) or {args.pairs} dynamic (Bonn crowd) consecutive pairs spread over the "
         f"sequence x {args.repeats} passes, the variants in turn pass by pass. hyps: mean RANSAC hypotheses per "

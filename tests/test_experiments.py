@@ -204,7 +204,7 @@ def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
 
 
 def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
-    """map_poses: the odometry asks ``Odometry._view_pose`` for each motion test's pose, the
+    """map_poses: the odometry asks ``Odometry.view_pose`` for each motion test's pose, the
     "true" variant answers with the ground truth's relative pose and the method is restored
     after the block; the "chained" variant is the library's run itself (the same mask counts as
     paper_sequences.run_default); the table has a row per variant."""
@@ -216,18 +216,18 @@ def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
     ((name, seed, seq, true_masks, frames),) = ps.opened_jobs([job])
     ok, G = seq.groundtruth_at_frames()
     asked = []
-    original = odometry.Odometry._view_pose
+    original = odometry.Odometry.view_pose
     with mp.view_poses("true", G):
-        answer = odometry.Odometry._view_pose
+        answer = odometry.Odometry.view_pose
 
         def spy(self, view, new, T_world_new):
             T = answer(self, view, new, T_world_new)
             asked.append((view, new, T))
             return T
-        odometry.Odometry._view_pose = spy
+        odometry.Odometry.view_pose = spy
         ps.run_default(seq, frames, true_masks, jax.random.key(0))
-        odometry.Odometry._view_pose = answer
-    assert odometry.Odometry._view_pose is original
+        odometry.Odometry.view_pose = answer
+    assert odometry.Odometry.view_pose is original
     assert asked, "no motion test asked for its pose"
     for view, new, T in asked:
         assert view < new and T.dtype == np.float32

@@ -1,1 +1,19 @@
-"""Two frames in, one MotionEstimate out: pyramid, residuals, brightness, solvers, RANSAC, the coarse-to-fine estimate."""
+"""Two frames in, one MotionEstimate out: pyramid, residuals, brightness, solvers, RANSAC, the coarse-to-fine estimate.
+
+Modules, in data-flow order: :mod:`~jaxvo.estimator.pyramid` (image pyramids),
+:mod:`~jaxvo.estimator.residuals` (warped points and their photometric and depth residuals),
+:mod:`~jaxvo.estimator.brightness` (the exposure offset), :mod:`~jaxvo.estimator.solvers`
+(least squares and IRLS on the pose), :mod:`~jaxvo.estimator.ransac` (hypotheses and consensus
+per level), :mod:`~jaxvo.estimator.trust` (the final pass's statistics and the failure flag),
+:mod:`~jaxvo.estimator.levels` (the coarse-to-fine program), :mod:`~jaxvo.estimator.inputs` (its
+checked arguments) and :mod:`~jaxvo.estimator.motion` (:func:`estimate_motion`, the entry point).
+"""
+from jaxvo.estimator.inputs import EstimateArgs, as_float32, checked_config, checked_key, estimate_args
+from jaxvo.estimator.levels import estimate_arrays, estimate_arrays_jit, trace_count
+from jaxvo.estimator.motion import estimate_motion
+from jaxvo.estimator.result import MotionEstimate
+from jaxvo.estimator.trust import TrustStats, explain_validity, pixel_counts
+
+__all__ = ["EstimateArgs", "MotionEstimate", "TrustStats", "as_float32", "checked_config", "checked_key",
+           "estimate_args", "estimate_arrays", "estimate_arrays_jit", "estimate_motion", "explain_validity",
+           "pixel_counts", "trace_count"]

@@ -21,14 +21,16 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import MotionEstimate, _estimate, _estimate_args
+from jaxvo.estimator import EstimateArgs, MotionEstimate, estimate_args, estimate_arrays
 from jaxvo.tracking.odometry import Odometry, PairInputs, Track
 from jaxvo.estimator.solvers import jit
 
 __all__ = ["batch_size", "estimate_batch", "track_batch"]
 
 # the estimate vmapped over (frames, camera, key, initial pose, weights); the config is shared
-_BATCHED = jit(jax.vmap(_estimate, in_axes=(0, 0, 0, 0, 0, None, 0, 0, 0)))
+_IN_AXES = tuple(EstimateArgs(ref_intensity=0, ref_depth=0, cur_intensity=0, cur_depth=0, camera=0, config=None,
+                              key=0, T_init=0, ref_weight=0))
+_BATCHED = jit(jax.vmap(estimate_arrays, in_axes=_IN_AXES))
 
 
 def _sharding():
@@ -58,15 +60,16 @@ def estimate_batch(pairs: Sequence[PairInputs], cameras: Sequence[Camera], confi
     if size < len(pairs) or size % len(jax.devices()):
         raise ValueError(f"batch size {size} must hold {len(pairs)} pairs and be a multiple of "
                          f"{len(jax.devices())} devices")
-    args = [_estimate_args(p.ref, p.cur, c, config, p.key, p.init, p.weights) for p, c in zip(pairs, cameras)]
+    args = [estimate_args(p.ref, p.cur, c, config, p.key, p.init, p.weights) for p, c in zip(pairs, cameras)]
     args += [args[0]] * (size - len(args))
-    if len({a[0].shape for a in args}) != 1:
+    if len({a.ref_intensity.shape for a in args}) != 1:
         raise ValueError("sequences in one batch must have the same image size, got "
-                         + ", ".join(sorted({f"{a[0].shape[1]}x{a[0].shape[0]}" for a in args})))
-    config = args[0][5]
-    cols = list(zip(*args))
-    stacked = [jnp.stack(c) for i, c in enumerate(cols) if i not in (4, 5)]
-    cam = jax.tree.map(lambda *x: jnp.asarray(x, jnp.float32), *cols[4])
+                         + ", ".join(sorted({f"{a.ref_intensity.shape[1]}x{a.ref_intensity.shape[0]}" for a in args})))
+    config = args[0].config
+    cols = EstimateArgs(*zip(*args))   # each field: its values over the batch
+    stacked = [jnp.stack(c) for c in (cols.ref_intensity, cols.ref_depth, cols.cur_intensity, cols.cur_depth, cols.key,
+                                      cols.T_init, cols.ref_weight)]
+    cam = jax.tree.map(lambda *x: jnp.asarray(x, jnp.float32), *cols.camera)
     sharding = _sharding()
     ri, rd, ci, cd, keys, T0, wt = jax.device_put(stacked, sharding)
     cam = jax.device_put(cam, sharding)

@@ -1,8 +1,6 @@
 """Streaming odometry: :class:`Odometry` (frames in, poses out) and :func:`track`, a loop over it."""
 from __future__ import annotations
 
-import functools
-import threading
 from typing import Iterable, NamedTuple, Optional
 
 import jax
@@ -13,10 +11,9 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame
-from jaxvo.estimator.motion import (MotionEstimate, _checked_key, _checked_settings, _float32, _pixel_counts,
-                                    estimate_motion)
-from jaxvo.runtime import aot
+from jaxvo.estimator import MotionEstimate, checked_config, checked_key, estimate_motion
 from jaxvo.tracking import segmentation
+from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
 class Track(NamedTuple):
     """Result of :func:`track`.
@@ -62,149 +59,20 @@ def _rigid(T) -> np.ndarray:
     return T
 
 
-@jax.jit
-def _map_inputs(intensity, depth, max_depth):
-    """A frame's inputs of the segmentation, one program: (map-level depth (votes, propagation,
-    regions), cue-level (intensity, depth) for the motion test). The cue level is one halving
-    below the map level, and XLA shares the depth's first halving between the two."""
-    return segmentation.map_depth(depth, max_depth), segmentation.cue_images(intensity, depth, max_depth)
+class Judgement(NamedTuple):
+    """What :meth:`Odometry._judge` makes of an estimate (host values).
 
-
-@functools.partial(jax.jit, static_argnames=("shape",))
-def _trust(L, flags, shape):
-    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags)), shape)
-
-
-def _occluded(est: MotionEstimate):
-    """The estimate's occluded mask, or no pixel hidden where it was made without one."""
-    return jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
-
-
-@jax.jit
-def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
-    """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
-    fraction of the valid reference pixels it does not trust, fraction of them it trusts and
-    the current frame does not hide (``occluded_mask``), inlier ratio over those)."""
-    trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
-    seen = valid_mask & trusted & ~occluded_mask
-    valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = _pixel_counts(
-        valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted, seen, inlier_mask & seen)
-    return (inl_trusted / jnp.maximum(valid_trusted, 1), valid_untrusted / jnp.maximum(valid, 1),
-            n_seen / jnp.maximum(valid, 1), inl_seen / jnp.maximum(n_seen, 1))
-
-
-@functools.partial(jax.jit, static_argnames=("shape",))
-def _unexplained(inlier_mask, valid_mask, occluded_mask, shape):
-    """The estimate's outliers that are not hidden in the current frame (occluded: they say
-    nothing), at the map level (``shape``): :func:`segmentation.photometric_outliers`."""
-    return segmentation.photometric_outliers(valid_mask & ~inlier_mask & ~occluded_mask, valid_mask, shape)
-
-
-# a program of its own, not fused into _unexplained: as one program the two ran 0.9 ms on the
-# 2-core CPU, as two 0.25 ms (320x240 map; XLA's CPU code for the fused loop is slower)
-@jax.jit
-def _update_map(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
-    return segmentation.add_current_vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params)
-
-
-@jax.jit
-def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params,
-                       new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
-    L = segmentation.propagate(L_old, old_md, new_md, T_old_new, camera, params)
-    L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
-    return _motion_tested(L, new_md, new_cue, cue_view, T_cue_new, cue_ok, camera, cue_camera, params)
-
-
-def _motion_tested(L, md, ref_cue, view_cue, T_view_ref, ok, camera, cue_camera, params):
-    """(evidence, flags) of :func:`segmentation.reference_map` for a reference with log-odds
-    ``L`` and map-level depth ``md``, after the motion test against a view (applied where
-    ``ok``)."""
-    labels = segmentation.region_labels(md, camera)
-    moved = segmentation.motion_regions(*labels, ref_cue, view_cue, T_view_ref, cue_camera, params)
-    return segmentation.reference_map(L, md, labels, moved & ok, params)
-
-
-@jax.jit
-def _later_motion_test(L, flags, ref_md, ref_cue, cur_cue, T_cur_ref, camera, params, cue_camera):
-    """The reference's map after the motion test against a later frame (``_CUE_AHEAD``): the
-    moving regions join the evidence and, with the coherent regions they make, the flags."""
-    evidence, new_flags = _motion_tested(L, ref_md, ref_cue, cur_cue, T_cur_ref, True, camera, cue_camera, params)
-    return evidence, flags | new_flags
-
-
-def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> threading.Thread:
-    """Compile the segmentation's programs that the first pair runs after its estimate
-    (:func:`_trust_ratios`, :func:`_unexplained`, :func:`_update_map`, :func:`_new_reference_map`
-    with few views, and the stack of those views), in a background thread started at the first
-    frame; returns the thread.
-
-    In a new process the first pair is mostly the estimator's compilation: first its trace
-    (Python, one core), then XLA (both cores, after a serial phase). These programs, compiled
-    one after the other behind it, added about a second; compiled beside the trace they are
-    ready when it needs them. The calls later find them in JAX's caches (or, if one is not done
-    yet, compile it themselves); an error here is left for that call to raise. Not a daemon
-    thread: an interpreter that exits while XLA compiles in a daemon thread may crash.
-
-    L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; cue: a frame's
-    :func:`segmentation.cue_images`; shape: the frames' (H, W); camera, cue_camera: the map
-    level's and the cue level's camera."""
-    def abstract(x, lead=()):
-        return jax.ShapeDtypeStruct(lead + tuple(x.shape), x.dtype)
-
-    def compile_all():
-        Lz, mz = abstract(L), abstract(md)
-        T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
-        n = _FEW_VIEWS
-        # the estimate's masks: committed to the device where they come from an exported program
-        # (jaxvo.runtime.aot), not where they come from the jit; another sharding is another compilation
-        shardings = (None, aot.sharding())
-        weights = jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape)
-        views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
-        masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
-        todo = [(_trust_ratios, (m, m, m, weights)) for m in masks]
-        todo += [(_unexplained, (m, m, m, tuple(md.shape))) for m in masks]
-        todo += [(_update_map, (Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera, params)),
-                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params)
-                  + ((abstract(cue[0]), abstract(cue[1])),) * 2
-                  + (T, jax.ShapeDtypeStruct((), jnp.bool_), cue_camera)),
-                 (_later_motion_test, (Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), mz,
-                                       (abstract(cue[0]), abstract(cue[1])), (abstract(cue[0]), abstract(cue[1])),
-                                       T, camera, params, cue_camera))]
-        for fn, args in todo:
-            try:
-                fn.lower(*args).compile()
-            except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
-                return
-        # and the stack of the views' depths (Odometry._set_reference), run once to compile it
-        jnp.stack([jnp.zeros(md.shape, jnp.float32)] * n)
-
-    thread = threading.Thread(target=compile_all, name="jaxvo-compile-map")
-    thread.start()
-    return thread
-
-
-# views that vote on a new reference's segmentation: one of two fixed numbers, so that the
-# map update compiles at most twice (missing views are padding with valid = False)
-_VIEWS = 12
-_FEW_VIEWS = 4
-# how far back the view of the motion test (segmentation.motion_regions) may lie: 8 frames
-# (a quarter of a second) let a walking person move a few pixels at the test's level
-_CUE_BACK = 8
-# a reference whose test had no view at least this many frames back (the first references,
-# chosen frame to frame while the empty map saw nothing move) is tested once more against the
-# first frame at least this many frames after it whose estimate succeeded, at that estimate.
-# Persons who moved 0-2 pixels at the test's level in the 2 frames before such a reference went
-# unflagged for every frame estimated against it: on fr2_desk with two synthetic persons (seeds
-# 0-11) the estimates against references 1-3 held 36 % of the missed moving pixels (recall
-# 0.40 there), and the pooled mask precision / recall was 0.794 / 0.790; with this test 0.810 /
-# 0.809 and ATE 0.016 against 0.018 m (seeds 12-23, held out: 0.792 / 0.837 -> 0.808 / 0.846,
-# ATE 0.016 -> 0.013 m; Bonn crowd unchanged; README "The default tracking"). A second test at
-# 6 frames after, or tests at 2, 4 and 6, were worse (0.797 / 0.806 and 0.747 / 0.772).
-_CUE_AHEAD = 3
-# the test's shifts and regions are sized for 160x120 at its level (a 640x480 camera); on the
-# 80x60 of a 320x240 camera a region is a few dozen pixels, many of them mixed depths at its
-# edges, and it flagged parts of a static synthetic room at the true poses: there it is off
-_CUE_MIN_WIDTH = 160
+    T: (4, 4) float64 T_cur_ref, its rotation re-orthonormalised. ratio: the inlier ratio.
+    ratio_static: the inlier ratio over the pixels the segmentation trusts (``ratio`` without one).
+    valid: the estimate is trusted and a plausible step from its initial guess.
+    dynamic: the fraction of the reference's valid pixels the segmentation does not trust (1.0
+    without one).
+    """
+    T: np.ndarray
+    ratio: float
+    ratio_static: float
+    valid: bool
+    dynamic: float
 
 
 class PairInputs(NamedTuple):
@@ -229,7 +97,8 @@ class Odometry:
     is the frame's camera-to-world pose (float64), ``odo.poses`` all poses so far. It holds
     what must persist between frames: the recent frames that can still serve as reference,
     the reference choice (:class:`TrackConfig`), and the reference's static/dynamic
-    segmentation (:mod:`jaxvo.tracking.segmentation`, a log-odds map at half resolution), which is
+    segmentation (``static_map``: a :class:`jaxvo.tracking.static_map.StaticMap`, a log-odds map
+    at half resolution, or its no-op counterpart with ``TrackConfig.segment`` False), which is
     carried from reference to reference with the estimated motion and updated from every
     estimate. :func:`track` and ``jaxvo run`` are loops over :meth:`add`.
 
@@ -241,31 +110,25 @@ class Odometry:
     def __init__(self, camera: Camera, config: Optional[Config] = None, key=None, policy: Optional[TrackConfig] = None,
                  T_world_first=None, segment_params: Optional[segmentation.SegmentParams] = None):
         self.camera = camera
-        self.config = _checked_settings(config, camera)
+        self.config = checked_config(config, camera)
         self.policy = TrackConfig() if policy is None else policy
         if not isinstance(self.policy, TrackConfig):
             raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
         self.policy.validate()
-        self.key = _checked_key(key)
+        self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
-        self._map_cam = camera.at_level(segmentation.MAP_LEVEL)
+        self.static_map = StaticMap(camera, self.config.max_depth, self.params) if self.policy.segment \
+            else NoStaticMap()
         self._first = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
         self.poses: list = []
         self.valid: list = []          # per frame >= 1: its estimate succeeded
         self.inlier_ratio: list = []
         self.references: list = []
         self._frames: dict = {}         # index -> Frame that may still serve as reference
-        self._depths: dict = {}         # index -> map-level depth, for the segmentation's votes
-        self._cues: dict = {}           # index -> cue-level (intensity, depth), for its motion test
-        self._cue_cam = camera.at_level(segmentation.CUE_LEVEL)
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
-        self._L = None                  # dynamic log-odds of the reference, map level (the evidence)
-        self._flags = None              # its regions flagged dynamic while it is the reference
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
-        self._tested = 0                # frames between the reference and its motion test's view
-        self._compiling = None          # the thread compiling the segmentation's programs ahead
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -289,21 +152,13 @@ class Odometry:
         :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch)."""
         j = len(self.poses)
         self._frames[j] = frame
-        if self.policy.segment:
-            self._depths[j], self._cues[j] = _map_inputs(_float32(frame.intensity), _float32(frame.depth),
-                                                         self.config.max_depth)
+        self.static_map.add(j, frame)
         if j == 0:
             self.poses.append(self._first)
-            if self.policy.segment:
-                self._L = jnp.full(self._depths[0].shape, self.params.prior, jnp.float32)
-                self._flags = jnp.zeros(self._depths[0].shape, bool)
-                self._compiling = _compile_map_programs(self._L, self._depths[0], self._cues[0],
-                                                        tuple(frame.depth.shape), self._map_cam, self._cue_cam,
-                                                        self.params)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
-        trust = _trust(self._L, self._flags, tuple(frame.depth.shape)) if self.policy.segment else None
+        trust = self.static_map.trust(tuple(frame.depth.shape))
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
         # and leaving them out costs accuracy (fr2_desk 0.0185 against 0.0179 m/s)
         weights = None if self._calm else trust
@@ -320,7 +175,7 @@ class Odometry:
         # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)
         extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
         judged = self._judge(est, T_ref_prev, weights, extra)
-        if not judged[3] and policy.retry:
+        if not judged.valid and policy.retry:
             est, judged = self._retry(pair, est, judged, extra)
         T, ratio, ratio_static, valid, dynamic = judged
         pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
@@ -330,28 +185,14 @@ class Odometry:
         self.references.append(ref)
         if valid:
             self._rel[j] = T
-        static_mask = None
-        if policy.segment:
-            static_mask = np.asarray(weights)[: frame.depth.shape[0], : frame.depth.shape[1]] >= 0.5
-            if valid:  # the current frame's view of the reference, at the estimated pose
-                occluded = _occluded(est)
-                # through the host (77 kB at 320x240): from an exported program (jaxvo.runtime.aot) the
-                # masks are committed to the device, and a committed input would commit the map
-                # and everything computed from it, the estimate's weights included, so the map's
-                # programs and the estimator would each compile a second time
-                unexplained = np.asarray(_unexplained(est.inlier_mask, est.valid_mask, occluded, self._L.shape))
-                self._L = _update_map(self._L, self._depths[ref], self._depths[j], _float32(T), unexplained,
-                                      self._map_cam, self.params)
-                if self._tested < _CUE_AHEAD <= j - ref and self._cue_cam.width >= _CUE_MIN_WIDTH:
-                    self._L, self._flags = _later_motion_test(self._L, self._flags, self._depths[ref], self._cues[ref],
-                                                              self._cues[j], _float32(T), self._map_cam, self.params,
-                                                              self._cue_cam)
-                    self._tested = j - ref
+        static_mask = self.static_map.static_mask(weights, frame.depth.shape)
+        if valid:  # the current frame's view of the reference, at the estimated pose
+            self.static_map.update(est, ref, j, T)
         result = TrackStep(j, ref, est, pose, valid, static_mask)
         self._maybe_switch(j, T, ratio_static, dynamic)
         return result
 
-    def _retry(self, pair: "PairInputs", est: MotionEstimate, judged, extra):
+    def _retry(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
         """(estimate, :meth:`_judge` of it) for a frame whose estimate ``est`` failed: the pair
         estimated once more from the guess that the camera kept the motion between the two
         previous frames (``TrackConfig.retry``), if both were estimated and that one passes;
@@ -363,7 +204,7 @@ class Odometry:
         again = estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
                                 init=geometry.inverse(guess), weights=pair.weights)
         judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
-        return (again, judged_again) if judged_again[3] else (est, judged)
+        return (again, judged_again) if judged_again.valid else (est, judged)
 
     def _held(self, j: int) -> np.ndarray:
         """Pose of frame j whose estimate failed: the previous pose, moved on at the mean velocity
@@ -388,12 +229,12 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
+    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess). Returns (estimate,) + :meth:`_judge` of it."""
+        (float64 T_ref_guess). Returns (estimate, :meth:`_judge` of it)."""
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
-        return (est,) + self._judge(est, T_ref_prev, weights)
+        return est, self._judge(est, T_ref_prev, weights)
 
     def _stale_allowance(self):
         """(metres, degrees) the camera may have moved beyond one frame's step while the latest
@@ -415,32 +256,24 @@ class Odometry:
         return (failed * np.linalg.norm(d[:3, 3]) / n,
                 failed * np.degrees(geometry.rotation_angle(d[:3, :3])) / n)
 
-    def _judge(self, est: MotionEstimate, T_ref_prev: np.ndarray, weights, extra=(0.0, 0.0)):
-        """(T_cur_ref float64, inlier ratio, inlier ratio over trusted pixels, valid, dynamic) of an
-        estimate from the initial guess ``T_ref_prev``; valid also requires a plausible step from the
-        guess: within the policy's per-frame limits plus ``extra`` (metres, degrees) for a stale
-        guess. dynamic: the fraction of the reference's valid pixels the map does not trust (1.0
-        without the segmentation)."""
+    def _judge(self, est: MotionEstimate, T_ref_prev: np.ndarray, weights, extra=(0.0, 0.0)) -> Judgement:
+        """The :class:`Judgement` of an estimate from the initial guess ``T_ref_prev`` with the
+        reference's static ``weights``; valid also requires a plausible step from the guess: within
+        the policy's per-frame limits plus ``extra`` (metres, degrees) for a stale guess."""
         policy = self.policy
-        if policy.segment:
-            occluded = _occluded(est)
-            T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
-                (est.T_cur_ref, est.inlier_ratio, est.valid,
-                 _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))
-            # TrackConfig.rescue: RANSAC's flag counts every pixel, and where people cover most of
-            # the reference and stand in front of the rest, a right estimate fails it
-            if not ok and policy.rescue > 0 and self.config.method == "ransac":
-                ok = seen >= policy.rescue_support and ratio_seen >= policy.rescue
-        else:
-            T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
-            ratio_static, dynamic = ratio, 1.0
-        T = _rigid(T)
+        r = self.static_map.read(est, weights)
+        ok = r.ok
+        # TrackConfig.rescue: RANSAC's flag counts every pixel, and where people cover most of
+        # the reference and stand in front of the rest, a right estimate fails it
+        if not ok and policy.rescue > 0 and self.config.method == "ransac":
+            ok = r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
+        T = _rigid(r.T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         if valid:
             step = T @ T_ref_prev                          # T_cur_guess
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step + extra[0]
                      and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg + extra[1]))
-        return T, float(ratio), float(ratio_static), valid, float(dynamic)
+        return Judgement(T, float(r.ratio), float(r.ratio_static), valid, float(r.dynamic))
 
     def _smoothed(self, new: int) -> np.ndarray:
         """Pose of ``new`` from a smooth fit to all estimates against its reference.
@@ -471,20 +304,21 @@ class Odometry:
         if not self.policy.fuse or parent == old or new <= old:
             return pose
         T_world_old = self._chain_pose(old)
-        weights = _trust(self._L, self._flags, tuple(self._frames[new].depth.shape)) if self.policy.segment else None
+        weights = self.static_map.trust(tuple(self._frames[new].depth.shape))
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
-        _, T, _, _, valid, _ = self._estimate(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
-                                              weights)
-        if not valid:
+        _, judged = self._estimate_against(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
+                                           weights)
+        if not judged.valid:
             return pose
-        other = T_world_old @ geometry.inverse(T)
+        other = T_world_old @ geometry.inverse(judged.T)
         return geometry.interpolate(pose, other, 0.5)
 
     def _maybe_switch(self, j: int, T_cur_ref: np.ndarray, ratio_static: float, dynamic: float) -> None:
         policy, ref = self.policy, self._ref
         far = (np.linalg.norm(T_cur_ref[:3, 3]) > policy.switch_baseline
                or geometry.rotation_angle(T_cur_ref[:3, :3]) > np.radians(policy.switch_deg))
-        calm = policy.segment and self.valid[-1] and dynamic < policy.calm_fraction
+        # never without the segmentation (dynamic 1.0, calm_fraction <= 1)
+        calm = self.valid[-1] and dynamic < policy.calm_fraction
         self._calm = calm
         if calm:      # nothing moves: frame to frame, the shortest baseline
             self._set_reference(j, j)
@@ -499,9 +333,7 @@ class Odometry:
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
         for old in [i for i in self._frames if i < self._ref]:
             del self._frames[old]
-        for old in [i for i in self._depths if i < keep_depth]:
-            del self._depths[old]
-            self._cues.pop(old, None)
+        self.static_map.forget(keep_depth)
         for d in (self._anchor, self._rel):   # estimates against the last references only
             for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap]:
                 del d[old]
@@ -510,44 +342,18 @@ class Odometry:
         old = self._ref
         self._anchor[new] = self._fused_anchor(new, j)
         self._ref = new
-        if not self.policy.segment:
-            return
-        # the poses the map's votes use: anchors where set (looked up per voter, not a copy of
-        # every pose so far: in the calm mode this runs every frame)
-        T_world_new = self._chain_pose(new)
-        # voters: earlier frames at offsets 2, 4, 8, ... and every frame after the new
-        # reference up to the current one (all with successful estimates)
-        earlier = [new - (2 << k) for k in range(self.policy.history)]
-        later = list(range(new + 1, j + 1))
-        voters = [i for i in later[::-1] + earlier
-                  if i in self._depths and i != new and (i == 0 or self.valid[i - 1])][:_VIEWS]
-        shape = self._depths[new].shape
-        # padded to one of two sizes: in the calm mode the voters are the 4 earlier frames, and
-        # voting for 12 views (8 of them padding) would cost 3x as much
-        n = _FEW_VIEWS if len(voters) <= _FEW_VIEWS else _VIEWS
-        pad = [jnp.zeros(shape, jnp.float32)] * (n - len(voters))
-        mds = jnp.stack([self._depths[i] for i in voters] + pad)   # stays on the device
-        Ts = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
-        ok = np.zeros(n, bool)
-        for k, i in enumerate(voters):
-            Ts[k] = geometry.inverse(self._chain_pose(i)) @ T_world_new
-            ok[k] = True
-        T_old_new = (geometry.inverse(self._chain_pose(old)) @ T_world_new).astype(np.float32)
-        # the motion test's view: the earliest of the earlier voters at most _CUE_BACK frames back
-        back = [i for i in earlier if 0 < new - i <= _CUE_BACK and i in self._cues and (i == 0 or self.valid[i - 1])
-                and self._cue_cam.width >= _CUE_MIN_WIDTH]
-        cue = self._cues[min(back)] if back else self._cues[new]
-        T_cue = self._view_pose(min(back), new, T_world_new) if back else np.eye(4, dtype=np.float32)
-        self._tested = new - min(back) if back else 0
-        self._L, self._flags = _new_reference_map(self._L, self._depths[old], self._depths[new], T_old_new, mds, Ts, ok,
-                                     self._map_cam, self.params, self._cues[new], cue, T_cue, np.bool_(bool(back)),
-                                     self._cue_cam)
+        self.static_map.new_reference(old, new, j, self.policy.history, self._chain_pose, self.valid,
+                                      self.view_pose)
 
-    def _view_pose(self, view: int, new: int, T_world_new: np.ndarray) -> np.ndarray:
+    def view_pose(self, view: int, new: int, T_world_new: np.ndarray) -> np.ndarray:
         """T_view_new (4, 4) float32, the pose at which the new reference ``new`` (camera-to-world
-        ``T_world_new``) is tested for motion against the earlier frame ``view``: from the chained
-        poses. On its own seam so that `experiments/map_poses.py` can measure what the masks reach
-        with other poses there (the ground truth, or one estimated between the two frames)."""
+        ``T_world_new``) is tested for motion against the earlier frame ``view``
+        (:meth:`jaxvo.tracking.static_map.StaticMap.new_reference`): from the chained poses.
+
+        A seam: a subclass (or an assignment to ``Odometry.view_pose``) may return another pose
+        there, e.g. the ground truth or one estimated between the two frames, to measure what the
+        masks reach with it (``experiments/map_poses.py``); the map reads the frames' motion-test
+        images from ``self.static_map.cues`` at ``self.static_map.cue_camera``."""
         return (geometry.inverse(self._chain_pose(view)) @ T_world_new).astype(np.float32)
 
     def _chain_pose(self, i: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from jaxvo.tracking.batch import batch_size, estimate_batch, track_batch
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
 from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import estimate_motion, trace_count
+from jaxvo.estimator import estimate_motion, trace_count
 from jaxvo.tracking.odometry import Odometry, track
 from jaxvo.estimator.pyramid import downsample
 from jaxvo.synthetic import make_room, render

@@ -10,7 +10,7 @@ import pytest
 
 from jaxvo import Config, Frame, estimate_motion, geometry
 from jaxvo.camera import DEFAULT
-from jaxvo.estimator.motion import explain_validity
+from jaxvo.estimator import explain_validity
 
 CAM = DEFAULT.at_level(2)
 CFG = Config(method="classic")   # the rule is the same for every method; classic compiles fastest

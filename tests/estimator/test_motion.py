@@ -18,9 +18,8 @@ import jaxvo
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
-from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import estimate_motion, trace_count
-from jaxvo.tracking.odometry import track
+from jaxvo.config import Config
+from jaxvo.estimator import estimate_motion, trace_count
 from jaxvo.synthetic import make_person, make_room, render
 from jaxvo.synthetic.motions import _T, rot_y
 
@@ -247,81 +246,6 @@ def test_vmap_over_threshold_equals_separate_calls(dynamic_pair):
     assert float(batched.inlier_ratio[-1]) > float(batched.inlier_ratio[0])
 
 
-def test_track_chains_camera_to_world_poses(static_pair):
-    a, b = static_pair
-    frames = [a.frame(), b.frame(), a.frame()]
-    tr = track(frames, CAM, Config(method="classic"), jax.random.key(0))
-    assert tr.poses.shape == (3, 4, 4) and tr.poses.dtype == np.float64
-    np.testing.assert_allclose(tr.poses[0], np.eye(4))
-    # T_world_cur = T_world_ref @ inv(T_cur_ref): frame 1 sits at inv(MOTION)
-    np.testing.assert_allclose(tr.poses[1], np.linalg.inv(MOTION), atol=3e-3)
-    # going back to frame a closes the loop
-    np.testing.assert_allclose(tr.poses[2], np.eye(4), atol=3e-3)
-    assert tr.valid.all()
-
-
-def test_track_keyframe_references_and_poses(static_pair):
-    """Each frame is estimated against a reference up to max_gap frames back; after a move the
-    reference is `lag` frames behind. Poses are right whatever the reference."""
-    a, b = static_pair
-    frames = [a.frame(), b.frame()] * 4
-    steps = []
-    # the frames jump back and forth, which no camera does: no smoothing of reference poses;
-    # the scene is static, so calm_fraction 0 keeps the keyframes
-    tr = track(frames, CAM, Config(method="classic"), jax.random.key(0),
-               policy=TrackConfig(max_gap=3, lag=1, smooth=False, calm_fraction=0.0), callback=steps.append)
-    # frames 1-3 against 0; after frame 3 (gap 3) the reference moves to 3 - 1 = 2; after 5 to 4; ...
-    assert tr.reference.tolist() == [0, 0, 0, 2, 2, 4, 4]
-    assert [s.reference for s in steps] == tr.reference.tolist() and [s.frame for s in steps] == list(range(1, 8))
-    for j in range(8):
-        want = np.eye(4) if j % 2 == 0 else np.linalg.inv(MOTION)
-        np.testing.assert_allclose(tr.poses[j], want, atol=3e-3)
-    assert tr.valid.all() and tr.relative.shape == (7, 4, 4)
-    # the relative motions are those of consecutive poses
-    np.testing.assert_allclose(tr.relative[2], np.linalg.inv(tr.poses[3]) @ tr.poses[2], atol=1e-12)
-
-
-def test_track_frame_to_frame_paths_agree(static_pair):
-    """Frame to frame with and without failure handling give the same poses when nothing fails."""
-    a, b = static_pair
-    frames = [a.frame(), b.frame(), a.frame()]
-    cfg = Config(method="classic")
-    fast = track(frames, CAM, cfg, jax.random.key(0), policy=TrackConfig.frame_to_frame(hold_invalid=False))
-    slow = track(frames, CAM, cfg, jax.random.key(0), policy=TrackConfig.frame_to_frame())
-    np.testing.assert_allclose(fast.poses, slow.poses, atol=1e-6)
-    assert fast.reference.tolist() == slow.reference.tolist() == [0, 1]
-
-
-def test_track_holds_the_pose_over_a_failed_estimate(static_pair):
-    """A frame the estimator cannot register (noise) keeps the previous pose and is reported invalid."""
-    a, b = static_pair
-    rng = np.random.default_rng(1)
-    noise = Frame(rng.uniform(0, 255, (480, 640)).astype(np.float32),
-                  rng.uniform(0.5, 3.0, (480, 640)).astype(np.float32))
-    frames = [a.frame(), b.frame(), noise, b.frame()]
-    tr = track(frames, CAM, Config(method="ransac"), jax.random.key(0), policy=TrackConfig.frame_to_frame())
-    assert tr.valid.tolist() == [True, False, True]
-    np.testing.assert_allclose(tr.poses[2], tr.poses[1], atol=0)
-    # the failed frame never serves as a reference: frame 3 is estimated against frame 1
-    assert tr.reference.tolist() == [0, 1, 1]
-    np.testing.assert_allclose(tr.poses[3], np.linalg.inv(MOTION), atol=3e-3)
-    # without failure handling the noise frame's estimate is chained as it is
-    raw = track(frames, CAM, Config(method="ransac"), jax.random.key(0),
-                policy=TrackConfig.frame_to_frame(hold_invalid=False))
-    assert not np.allclose(raw.poses[2], raw.poses[1], atol=1e-9)
-
-
-@pytest.mark.parametrize("policy, match", [
-    (TrackConfig(max_gap=0, lag=0), "max_gap"),
-    (TrackConfig(max_gap=4, lag=4), "lag"),
-    (TrackConfig(max_step=0.0), "max_step"),
-])
-def test_track_config_is_validated(static_pair, policy, match):
-    a, b = static_pair
-    with pytest.raises(ValueError, match=match):
-        track([a.frame(), b.frame()], CAM, Config(method="classic"), policy=policy)
-
-
 def _frame(h=480, w=640, depth=1.0):
     rng = np.random.default_rng(0)
     return Frame(rng.uniform(0, 255, (h, w)).astype(np.float32), np.full((h, w), depth, np.float32))
@@ -355,7 +279,7 @@ def test_sample_gate_drops_pixels_something_stepped_in_front_of():
     """RANSAC's sample centres skip reference pixels whose depth residual at the starting pose
     exceeds Config.sample_gate (an occluder that arrived after the reference), and the gate
     stands down when it would leave fewer than 10 % of the trusted pixels."""
-    from jaxvo.estimator.motion import _gated
+    from jaxvo.estimator.levels import _gated
     from jaxvo.estimator.pyramid import build_pyramid
     cam = DEFAULT.at_level(2)
     h, w = cam.height, cam.width
@@ -420,7 +344,7 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
     levels 3-2 (every pixel: 4800 and 19200 points, so level 3's point list and scoring grid are
     padded), and with the (4, 2, 1, 1) tiles [3], [2, 1], [0] (level 3's 4800 points padded to
     19200 would be 23 %). Classic and Huber run per level."""
-    from jaxvo.estimator.motion import _level_groups
+    from jaxvo.estimator.levels import _level_groups
     assert _level_groups(Config(), 4, 640, 480) == [[3, 2, 1], [0]]
     assert _level_groups(Config.paper(), 4, 640, 480) == [[3, 2], [1], [0]]
     assert _level_groups(Config(blocks=(4, 2, 1, 1)), 4, 640, 480) == [[3], [2, 1], [0]]
@@ -443,10 +367,10 @@ def test_scan_levels_equals_the_per_level_estimate(dynamic_pair):
 def test_pixel_counts_are_the_sums_of_the_masks():
     """The estimator's and the map's pixel counts come from one variadic reduction: the same
     integers as a jnp.sum per mask, for 1-D and 2-D masks."""
-    from jaxvo.estimator.motion import _pixel_counts
+    from jaxvo.estimator import pixel_counts
     rng = np.random.default_rng(3)
     for shape in ((307,), (48, 64)):
         masks = [jnp.asarray(rng.random(shape) < p) for p in (0.0, 0.2, 0.5, 1.0)]
-        counts = _pixel_counts(*masks)
+        counts = pixel_counts(*masks)
         assert [int(c) for c in counts] == [int(jnp.sum(m)) for m in masks]
         assert all(c.dtype == jnp.int32 for c in counts)

@@ -15,7 +15,7 @@ from jaxvo import geometry
 from jaxvo.tracking import segmentation as S
 from jaxvo.camera import DEFAULT, Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.estimator.motion import trace_count
+from jaxvo.estimator import trace_count
 from jaxvo.tracking.odometry import Odometry, track
 from jaxvo.synthetic import make_sequence
 
@@ -364,9 +364,9 @@ def test_odometry_compiles_once(frames320):
 
 
 def _jitted():
-    from jaxvo.tracking import odometry as O
-    return [O._map_inputs, O._trust, O._trust_ratios, O._unexplained, O._update_map, O._new_reference_map,
-            O._later_motion_test]
+    from jaxvo.tracking import static_map as M
+    return [M._map_inputs, M._trust, M._trust_ratios, M._unexplained, M._update_map, M._new_reference_map,
+            M._later_motion_test]
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
@@ -430,8 +430,8 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     The motion tests are let run at this small size, so that the first reference's later test
     is among the calls."""
     from jaxvo.runtime import aot
-    from jaxvo.tracking import odometry as O
-    monkeypatch.setattr(O, "_CUE_MIN_WIDTH", 0)
+    from jaxvo.tracking import static_map as M
+    monkeypatch.setattr(M, "_CUE_MIN_WIDTH", 0)
     later = []
 
     class Spy:   # counts the calls; the background thread still finds the program's .lower
@@ -442,7 +442,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
             later.append(1)
             return self.fn(*args)
 
-    monkeypatch.setattr(O, "_later_motion_test", Spy(O._later_motion_test))
+    monkeypatch.setattr(M, "_later_motion_test", Spy(M._later_motion_test))
     cam = Camera(150.0, 150.0, 95.5, 71.5, 192, 144)   # an image size no other test compiles for
     s = make_sequence("seq3", frames=8, seed=1, camera=cam)
     frames = [s.render(k).frame() for k in range(len(s))]
@@ -451,7 +451,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     try:
         aot.enable(tmp_path / "exported" if exported else None)
         odo.add(frames[0])
-        odo._compiling.join()
+        odo.static_map.compiling.join()
         names = ("_trust_ratios", "_unexplained", "_update_map", "_new_reference_map", "_later_motion_test")
         with jax.log_compiles(True), caplog.at_level("DEBUG", logger="jax"):
             steps = []
@@ -465,7 +465,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     assert len(estimator) == 1, estimator                                # and the log is captured
     assert not [m for m in compiled if any(f"jit({n})" in m for n in names)]
     # nor the stack of a new reference map's few (4) views (12 views may compile later)
-    md_shape = "float32[%d,%d]" % odo._L.shape
+    md_shape = "float32[%d,%d]" % odo.static_map.L.shape
     assert not [r.getMessage() for r in caplog.records
                 if r.getMessage().startswith("Compiling jit(stack)") and r.getMessage().count(md_shape) == 4]
     assert len({st.reference for st in steps}) >= 2                     # a new reference map was made

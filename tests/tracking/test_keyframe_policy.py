@@ -15,7 +15,7 @@ from jaxvo.tracking import odometry as O
 from jaxvo.camera import DEFAULT
 from jaxvo.frame import Frame
 from jaxvo.config import TrackConfig
-from jaxvo.estimator.motion import MotionEstimate
+from jaxvo.estimator import MotionEstimate
 from jaxvo.tracking.odometry import Odometry
 
 CAM = DEFAULT.at_level(2)          # 160x120: the frames only carry their index
