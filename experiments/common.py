@@ -36,7 +36,7 @@ for _p in (str(_REPO), str(_HERE)):
 
 import jax  # noqa: E402
 
-from jaxvo.data import sequences as datasets
+from jaxvo import data as datasets
 from jaxvo.runtime import machine
 from jaxvo.evaluation import metrics
 from jaxvo.evaluation import peers

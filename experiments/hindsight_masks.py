@@ -37,7 +37,7 @@ import common  # noqa: E402  (sets sys.path for jaxvo)
 import jax  # noqa: E402
 
 from jaxvo.data import trajectory  # noqa: E402
-from jaxvo.data.sequences import TumSequence  # noqa: E402
+from jaxvo.data.tum import TumSequence  # noqa: E402
 from jaxvo.tracking.hindsight import OFFSETS, HindsightParams, sequence_masks  # noqa: E402
 
 import paper_sequences  # noqa: E402

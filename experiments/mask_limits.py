@@ -44,7 +44,7 @@ from jaxvo import geometry
 from jaxvo.tracking import segmentation
 from jaxvo.data import trajectory  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
-from jaxvo.data.sequences import TumSequence  # noqa: E402
+from jaxvo.data.tum import TumSequence  # noqa: E402
 from jaxvo.estimator.pyramid import build_pyramid  # noqa: E402
 from jaxvo.estimator.ransac import inliers  # noqa: E402
 from jaxvo.estimator.residuals import reference_points, residuals, sample_bilinear  # noqa: E402

@@ -39,8 +39,9 @@ from jaxvo import geometry, viz
 from jaxvo.evaluation import metrics
 from jaxvo.data import trajectory  # noqa: E402
 from jaxvo.camera import DEFAULT  # noqa: E402
-from jaxvo.data.sequences import TumSequence  # noqa: E402
-from jaxvo.pipelines.mapping import load_mask, moving_mask, read_moving_masks  # noqa: E402
+from jaxvo.data.tum import TumSequence  # noqa: E402
+from jaxvo.data.masks import load_mask_of_size as load_mask, true_masks as read_moving_masks  # noqa: E402
+from jaxvo.pipelines.mapping import moving_mask  # noqa: E402
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.tracking.odometry import track  # noqa: E402
 

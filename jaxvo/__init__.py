@@ -23,7 +23,7 @@ from jaxvo.frame import Frame, make_frame
 from jaxvo.config import METHODS, Config, TrackConfig
 from jaxvo.estimator.motion import MotionEstimate, estimate_motion
 from jaxvo.tracking.odometry import Odometry, Track, TrackStep, track
-from jaxvo.data.sequences import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
+from jaxvo.data import DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, open_sequence
 from jaxvo.data.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.evaluation.metrics import ate, mask_scores, rpe
 from jaxvo.pipelines.run import RunResult, load_config, load_sequence, run_sequence

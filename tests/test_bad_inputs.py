@@ -29,7 +29,7 @@ from click.testing import CliRunner
 from jaxvo import Camera, Config, Frame, TrackConfig, estimate_motion, track
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.data.sequences import TumSequence
+from jaxvo.data.tum import TumSequence
 from jaxvo.data.trajectory import read_tum_trajectory
 from jaxvo.validation import check_fields, real
 

@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from jaxvo.cli.main import main
-from jaxvo.data.sequences import data_root
+from jaxvo.data.layouts import data_root
 from jaxvo.runtime import machine
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "bitwise"

@@ -24,7 +24,7 @@ from click.testing import CliRunner
 
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.data.sequences import data_root
+from jaxvo.data.layouts import data_root
 from jaxvo.data.trajectory import read_tum_trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -332,7 +332,7 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
     """`jaxvo run` writes exactly what jaxvo.tracking.odometry.track computes (same keys, same chaining)."""
     import jax
 
-    from jaxvo.data.sequences import TumSequence
+    from jaxvo.data.tum import TumSequence
     from jaxvo.config import Config
     from jaxvo.tracking.odometry import track
 

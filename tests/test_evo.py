@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from jaxvo.cli.main import main
-from jaxvo.data.sequences import DatasetError, find_sequence
+from jaxvo.data import DatasetError, find_sequence
 from jaxvo.evaluation.report import evaluate
 from jaxvo.data.trajectory import read_tum_trajectory
 

@@ -6,7 +6,7 @@ import pytest
 
 from jaxvo.pipelines import mapping
 from jaxvo.camera import DEFAULT
-from jaxvo.data.sequences import DatasetError, TumSequence
+from jaxvo.data import DatasetError, TumSequence
 from jaxvo.data.trajectory import read_tum_trajectory
 
 CAM = DEFAULT.at_level(2)   # 160x120: fast to render

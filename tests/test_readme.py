@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxvo.data.sequences import DatasetError, find_sequence
+from jaxvo.data import DatasetError, find_sequence
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

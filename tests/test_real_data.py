@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry
-from jaxvo.data.sequences import TumSequence, data_root
+from jaxvo.data import TumSequence, data_root
 from jaxvo.config import Config
 from jaxvo.estimator.motion import estimate_motion
 
@@ -130,7 +130,8 @@ def test_fr2_desk_with_persons_default_flags_them_and_beats_pairwise_ransac(fr2_
     RANSAC. Measured 2026-11-26: pooled precision / recall 0.87 / 0.84 (0.88 / 0.85, 0.85 /
     0.84), ATE 4.4 and 6.4 mm against RANSAC's 15.4 and 11.2 mm."""
     from jaxvo.evaluation import metrics
-    from jaxvo.pipelines.mapping import load_mask, moving_mask, read_moving_masks
+    from jaxvo.data.masks import load_mask_of_size as load_mask, true_masks as read_moving_masks
+    from jaxvo.pipelines.mapping import moving_mask
     from jaxvo.config import TrackConfig
     from jaxvo.tracking.odometry import track
     from jaxvo.synthetic import augment

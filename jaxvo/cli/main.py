@@ -25,7 +25,7 @@ import numpy as np
 
 from jaxvo.runtime import cache
 from jaxvo.camera import DEFAULT, PRESETS, camera_for_size
-from jaxvo.data.sequences import DatasetError
+from jaxvo.data.errors import DatasetError
 from jaxvo.pipelines.demo import fmt, parse_size, progress_bar, run_demo
 from jaxvo.evaluation.report import evaluate, trajectory_errors
 from jaxvo.tracking.hindsight import OFFSETS as HINDSIGHT_OFFSETS, HindsightParams
@@ -536,7 +536,7 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
 def _expand_sequences(paths) -> list:
     """The sequence folders named on the command line: each path as it is, except a folder that is
     not a sequence itself but holds sequence folders (rgb.txt + depth.txt), which stands for them."""
-    from jaxvo.data.sequences import _is_sequence_dir, find_sequences, open_sequence
+    from jaxvo.data.layouts import find_sequences, is_sequence_dir as _is_sequence_dir, open_sequence
 
     dirs = []
     for p in paths:
@@ -934,7 +934,7 @@ poses first, as jaxvo eval does. Then evo gives jaxvo eval's numbers:
               help="Force / forbid the Bonn marker-to-camera conversion. [default: by folder name]")
 @_handle_errors
 def gt_cmd(sequence_dir, out, bonn):
-    from jaxvo.data.sequences import open_sequence
+    from jaxvo.data.layouts import open_sequence
     from jaxvo.data.trajectory import HEADER, write_tum_trajectory
 
     seq = open_sequence(sequence_dir, bonn=bonn, camera=DEFAULT)  # intrinsics are not needed here
@@ -971,7 +971,7 @@ def _read_trajectory(traj):
     'jaxvo run' marked held (its estimate failed and the previous pose was kept: a guess) are left
     out. DatasetError when the file is missing or has no pose. A ground-truth file may repeat a
     timestamp (TUM's tools keep the first); an estimate may not."""
-    from jaxvo.data.sequences import read_pose_file
+    from jaxvo.data.textfiles import read_pose_file
     from jaxvo.data.trajectory import read_held
 
     if not Path(traj).is_file():

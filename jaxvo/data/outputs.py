@@ -7,7 +7,7 @@
   A run that fails half way leaves its work under the ``.partial`` name, so a previous
   result under the final name is never clobbered by an incomplete one.
 
-Errors are :class:`jaxvo.data.sequences.DatasetError` with one line naming the path.
+Errors are :class:`jaxvo.data.errors.DatasetError` with one line naming the path.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import shutil
 from pathlib import Path
 from typing import Iterable
 
-from jaxvo.data.sequences import DatasetError
+from jaxvo.data.errors import DatasetError
 
 __all__ = ["check_output", "check_output_folder", "partial_path", "finish"]
 

@@ -18,7 +18,8 @@ from typing import Iterable, Optional, Tuple
 import numpy as np
 
 from jaxvo import geometry
-from jaxvo.data.sequences import DatasetError, read_pose_file
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.textfiles import read_pose_file
 
 __all__ = ["chain", "read_tum_trajectory", "write_tum_trajectory", "format_pose_line",
            "TrajectoryWriter", "HEADER", "HELD_MARK", "read_held"]
@@ -73,7 +74,7 @@ def read_tum_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
     Lines are sorted by time. Raises DatasetError (a ValueError) with file, line number and
     problem: missing file, wrong number of fields, non-numeric or non-finite value, zero
     quaternion, a timestamp given twice, no pose at all.
-    (No Bonn conversion here: use :func:`jaxvo.data.sequences.read_groundtruth` for ground truth.)
+    (No Bonn conversion here: use :func:`jaxvo.data.groundtruth.read_groundtruth` for ground truth.)
     """
     return read_pose_file(path, what="trajectory", duplicates="error")
 

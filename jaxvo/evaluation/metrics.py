@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from jaxvo import geometry
-from jaxvo.data.sequences import associate as _associate
+from jaxvo.data.stamps import associate as _associate
 
 __all__ = ["Stats", "RPEResult", "ATEResult", "MaskScores", "associate", "rpe", "ate",
            "align_umeyama", "mask_scores", "summarize"]

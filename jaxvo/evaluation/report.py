@@ -14,7 +14,9 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from jaxvo.data.sequences import DatasetError, is_bonn_sequence, read_file_list, read_groundtruth
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
+from jaxvo.data.masks import load_mask, read_mask_dir, true_masks
 
 __all__ = ["evaluate", "trajectory_errors", "score_masks", "true_masks", "load_mask", "read_mask_dir",
            "load_groundtruth"]
@@ -43,41 +45,6 @@ def trajectory_errors(gt, stamps, poses, max_dt=0.02) -> Dict[str, object]:
             pass
     return out
 
-
-
-def read_mask_dir(folder: Path):
-    """(stamps, paths) of ``<timestamp>.png`` files in a folder (sorted by time)."""
-    items = []
-    for p in folder.glob("*.png"):
-        try:
-            items.append((float(p.stem), p))
-        except ValueError:
-            continue
-    items.sort()
-    return np.asarray([t for t, _ in items], np.float64), [p for _, p in items]
-
-
-def true_masks(seq_dir: Path):
-    """(stamps, paths) of a sequence's true moving-pixel masks (masks.txt, else masks/*.png); None if absent."""
-    if (seq_dir / "masks.txt").is_file():
-        t, names = read_file_list(seq_dir / "masks.txt")
-        return t, [seq_dir / n for n in names]
-    if (seq_dir / "masks").is_dir():
-        t, p = read_mask_dir(seq_dir / "masks")
-        if t.size:
-            return t, p
-    return None
-
-
-def load_mask(p: Path) -> np.ndarray:
-    import cv2
-
-    m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if m is None:
-        raise DatasetError(f"{p}: mask image does not decode (corrupt or not an image file)")
-    if m.ndim == 3:
-        m = m[..., 0]
-    return m > 127
 
 
 def score_masks(pred_dir, true_stamps, true_paths, max_dt: float = 0.02):

@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.camera import DEFAULT, camera_for_size
-from jaxvo.data.sequences import DatasetError, TumSequence
-from jaxvo.evaluation.report import load_mask, true_masks
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.tum import TumSequence
+from jaxvo.data.masks import load_mask, true_masks
 from jaxvo.pipelines.mapping import moving_mask
 from jaxvo.pipelines.run import run_sequence
 

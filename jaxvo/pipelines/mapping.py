@@ -28,6 +28,8 @@ from typing import Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
+from jaxvo.data.masks import load_mask_of_size as load_mask, true_masks as read_moving_masks
+
 __all__ = ["MOVING_COLOUR", "PointCloud", "MapResult", "match_trajectory", "backproject_frame",
            "outlier_mask", "moving_mask", "read_moving_masks", "load_mask", "voxel_downsample", "build_map", "write_ply",
            "read_ply", "render_preview", "preview_image"]
@@ -91,7 +93,7 @@ class MapResult:
 def match_trajectory(frame_stamps, traj_stamps, traj_poses, max_dt: float = 0.02) -> Tuple[np.ndarray, np.ndarray]:
     """Poses for the frames: ``(frame indices (M,), T_world_cam (M, 4, 4))`` of the frames whose
     timestamp has a trajectory entry within ``max_dt`` seconds (one-to-one, nearest first)."""
-    from jaxvo.data.sequences import associate
+    from jaxvo.data.stamps import associate
 
     P = np.asarray(traj_poses, np.float64)
     ia, ib = associate(frame_stamps, traj_stamps, max_dt)
@@ -157,46 +159,6 @@ def moving_mask(est, width: int, height: int, static_mask=None, valid_too: bool 
     return (out, val) if valid_too else out
 
 
-def read_moving_masks(seq_dir) -> Optional[Tuple[np.ndarray, list]]:
-    """``(stamps, paths)`` of a sequence's moving-pixel masks (``masks.txt``, else ``masks/*.png``
-    named by timestamp), or None when the sequence has none."""
-    from jaxvo.data.sequences import read_file_list
-
-    seq_dir = Path(seq_dir)
-    if (seq_dir / "masks.txt").is_file():
-        t, names = read_file_list(seq_dir / "masks.txt")
-        return t, [seq_dir / n for n in names]
-    if (seq_dir / "masks").is_dir():
-        items = []
-        for p in (seq_dir / "masks").glob("*.png"):
-            try:
-                items.append((float(p.stem), p))
-            except ValueError:
-                continue
-        if items:
-            items.sort()
-            return np.asarray([t for t, _ in items]), [p for _, p in items]
-    return None
-
-
-def load_mask(p, shape) -> np.ndarray:
-    """(H, W) bool moving-pixel mask from an 8-bit PNG (value > 127 = moving); DatasetError naming the
-    file if it does not decode or its size is not ``shape`` (H, W)."""
-    import cv2
-
-    from jaxvo.data.sequences import DatasetError
-    p = Path(p)
-    m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if m is None:
-        raise DatasetError(f"{p}: mask image does not decode (missing, corrupt or not an image file)")
-    if m.ndim == 3:
-        m = m[..., 0]
-    if m.shape != tuple(shape):
-        raise DatasetError(f"{p}: mask size {m.shape[1]}x{m.shape[0]} does not match the images' "
-                           f"{shape[1]}x{shape[0]}")
-    return m > 127
-
-
 def voxel_downsample(points, colors, voxel: float, moving=None):
     """Average positions and colours per voxel of side ``voxel`` metres (static and moving apart).
 
@@ -226,7 +188,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
               max_depth: float = 4.0, labels: Optional[str] = "estimate", config=None, seed: int = 0,
               stride: int = 1, max_dt: float = 0.02,
               progress: Optional[Callable[[int, int], None]] = None) -> MapResult:
-    """Coloured point cloud of a :class:`jaxvo.data.sequences.TumSequence` from a trajectory.
+    """Coloured point cloud of a :class:`jaxvo.data.tum.TumSequence` from a trajectory.
 
     Args:
       seq: the sequence (its camera must match the images).
@@ -245,7 +207,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
 
     Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
     """
-    from jaxvo.data.sequences import DatasetError
+    from jaxvo.data.errors import DatasetError
     from jaxvo.frame import make_frame
 
     t0 = time.perf_counter()

@@ -1,10 +1,10 @@
 """Run a sequence through the tracker: the library side of ``jaxvo run``.
 
-:func:`run_sequence` tracks a :class:`jaxvo.data.sequences.TumSequence` with
+:func:`run_sequence` tracks a :class:`jaxvo.data.tum.TumSequence` with
 :func:`jaxvo.tracking.odometry.track`, writes the trajectory as it goes and returns a
 :class:`RunResult`; :func:`resolve_camera` finds a folder's intrinsics and
 :func:`load_config` reads a :class:`jaxvo.config.Config` from a JSON file.
-Bad input raises :class:`jaxvo.data.sequences.DatasetError` / ``ValueError`` with a
+Bad input raises :class:`jaxvo.data.errors.DatasetError` / ``ValueError`` with a
 one-line message naming the file.
 """
 from __future__ import annotations
@@ -19,7 +19,9 @@ import numpy as np
 
 from jaxvo.runtime import machine
 from jaxvo.camera import PRESETS, Camera
-from jaxvo.data.sequences import DatasetError, TumSequence, open_sequence
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.layouts import open_sequence
+from jaxvo.data.tum import TumSequence
 from jaxvo.pipelines.mapping import moving_mask
 
 __all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
@@ -111,7 +113,7 @@ def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> 
 
 def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
                   **kwargs) -> TumSequence:
-    """Open a sequence folder of any supported layout (:func:`jaxvo.data.sequences.open_sequence`) with the
+    """Open a sequence folder of any supported layout (:func:`jaxvo.data.layouts.open_sequence`) with the
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
     (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to

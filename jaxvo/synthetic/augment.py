@@ -39,7 +39,8 @@ import cv2
 import numpy as np
 
 from jaxvo.camera import Camera
-from jaxvo.data.sequences import DatasetError, TumSequence
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.tum import TumSequence
 from jaxvo.synthetic.render import render
 from jaxvo.synthetic.scene import Scene, make_person
 from jaxvo.synthetic.writer import depth_to_png, write_list

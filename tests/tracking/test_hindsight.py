@@ -10,9 +10,8 @@ from click.testing import CliRunner
 from jaxvo.tracking import hindsight
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.data.sequences import TumSequence
-from jaxvo.evaluation.report import read_mask_dir
-from jaxvo.pipelines.mapping import load_mask, read_moving_masks
+from jaxvo.data.tum import TumSequence
+from jaxvo.data.masks import load_mask_of_size as load_mask, read_mask_dir, true_masks as read_moving_masks
 from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
 CAM = DEFAULT.at_level(2)      # 160x120

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry as G
-from jaxvo.data.sequences import DatasetError
-from jaxvo.data.sequences import read_pose_file
+from jaxvo.data.errors import DatasetError
+from jaxvo.data.textfiles import read_pose_file
 from jaxvo.data.trajectory import (HEADER, TrajectoryWriter, chain, format_pose_line, read_tum_trajectory,
                               write_tum_trajectory)
 

@@ -1,4 +1,4 @@
-"""Tests for jaxvo.data.sequences: TUM/Bonn reading, association, errors, lazy loading, ground truth."""
+"""Tests for jaxvo.data's sequence readers: TUM/Bonn reading, association, errors, lazy loading, ground truth."""
 from __future__ import annotations
 
 import threading
@@ -10,9 +10,9 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.camera import BONN, DEFAULT, TUM_FR2, Camera, camera_for_size
-from jaxvo.data.sequences import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
-                            data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
-                            read_pose_file)
+from jaxvo.data import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
+                        data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
+                        read_pose_file)
 
 W, H = 8, 6
 SMALL = Camera(10.0, 10.0, 3.5, 2.5, width=W, height=H)
