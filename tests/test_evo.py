@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from jaxvo.cli.main import main
 from jaxvo.data.sequences import DatasetError, find_sequence
-from jaxvo.evaluation.report import evaluate
+from jaxvo.evaluation.scoring import evaluate
 from jaxvo.data.trajectory import read_tum_trajectory
 
 

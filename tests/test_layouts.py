@@ -189,6 +189,6 @@ def test_mask_dir_fills_frame_mask_and_changes_the_trajectory(seq424, tmp_path):
 
 
 def _true_masks(seq_dir):
-    from jaxvo.evaluation.report import true_masks
+    from jaxvo.evaluation.scoring import true_masks
 
     return true_masks(seq_dir)
