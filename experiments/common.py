@@ -385,35 +385,39 @@ def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray
 
 
 def evaluate(seq: datasets.TumSequence, relative) -> Dict[str, object]:
-    """Trajectory metrics of chained ``relative`` motions on ``seq``'s frames.
+    """Trajectory metrics of chained ``relative`` motions on ``seq``'s frames, against the ground
+    truth interpolated at the frame stamps (:func:`jaxvo.evaluation.scoring.evaluate`,
+    ``protocol="interpolated"``).
 
     Keys: ``rpe1s_t`` (m/s, RMSE, fixed 1 s delta; None when the ground-truth-covered span
     is under 1 s), ``rpe1s_r`` (deg/s), ``rpef_t`` (m/frame, RMSE, delta = 1 frame),
     ``rpef_r`` (deg/frame), ``rpef_t_per_s`` (rpef_t / mean frame interval, m/s: a per-frame
     drift rate, not the paper's 1 s RPE), ``ate`` (m, RMSE), ``pairs_1s`` / ``pairs_f``.
     """
-    poses = trajectory.chain(relative)
+    from jaxvo.evaluation.scoring import evaluate as score
+
     row: Dict[str, object] = {"rpe1s_t": None, "rpe1s_r": None, "rpef_t": None, "rpef_r": None,
                               "rpef_t_per_s": None, "ate": None, "pairs_1s": 0, "pairs_f": 0}
-    g = groundtruth_at(seq)
-    if g is None:
+    if seq.groundtruth is None:
         row["note"] = "no ground truth"
         return row
-    gs, gP, mask = g
-    if mask.sum() < 2:
+    est = (seq.timestamps, trajectory.chain(relative))
+    kw = dict(protocol="interpolated", max_dt=seq.max_dt, slack=None)
+    try:
+        f = score(seq, est, delta=1, delta_unit="f", **kw)
+    except datasets.DatasetError:
         row["note"] = "ground truth covers < 2 frames"
         return row
-    es = seq.timestamps
-    r = metrics.rpe(gs, gP, es, poses, delta=1, delta_unit="f")
-    row.update(rpef_t=r.trans_stats.rmse, rpef_r=r.rot_stats.rmse, pairs_f=r.n)
-    row["rpef_t_per_s"] = r.trans_stats.rmse / float(np.mean(r.dt))
+    row.update(rpef_t=f.rpe.trans_stats.rmse, rpef_r=f.rpe.rot_stats.rmse, pairs_f=f.rpe.n)
+    row["rpef_t_per_s"] = f.rpe.trans_stats.rmse / float(np.mean(f.rpe.dt))
+    gs = f.gt[0]
     if gs[-1] - gs[0] >= 1.0 - 1e-3:
         try:
-            r1 = metrics.rpe(gs, gP, es, poses, delta=1.0, delta_unit="s")
-            row.update(rpe1s_t=r1.trans_drift.rmse, rpe1s_r=r1.rot_drift.rmse, pairs_1s=r1.n)
+            s = score(seq, est, delta=1.0, delta_unit="s", **kw).rpe
+            row.update(rpe1s_t=s.trans_drift.rmse, rpe1s_r=s.rot_drift.rmse, pairs_1s=s.n)
         except ValueError:
             pass
-    row["ate"] = metrics.ate(gs, gP, es, poses).stats.rmse
+    row["ate"] = f.ate.stats.rmse
     return row
 
 

@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 from jaxvo import viz
 from jaxvo.tracking import hindsight
+from jaxvo.data import ply  # noqa: E402
 from jaxvo.pipelines import mapping  # noqa: E402
 from jaxvo.config import Config, TrackConfig
 from jaxvo.tracking.odometry import track  # noqa: E402
@@ -114,7 +115,7 @@ def main(argv=None):
     p2 = mapping.render_preview(pts, cols, out / "bonn_map.png", poses=tr.poses)
     common.log(f"wrote {p2} ({len(pts)} points, {mv.mean():.1%} moving)")
     if args.ply:
-        common.log(f"wrote {mapping.write_ply(args.ply, pts, cols)}")
+        common.log(f"wrote {ply.write_ply(args.ply, pts, cols)}")
     return out
 
 

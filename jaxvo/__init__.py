@@ -27,7 +27,7 @@ from jaxvo.data import DatasetError, IclNuimSequence, RedwoodSequence, TumSequen
 from jaxvo.data.trajectory import TrajectoryWriter, read_tum_trajectory, write_tum_trajectory
 from jaxvo.evaluation.metrics import ate, mask_scores, rpe
 from jaxvo.pipelines.run import RunResult, load_config, load_sequence, run_sequence
-from jaxvo.evaluation.report import evaluate, trajectory_errors
+from jaxvo.evaluation.scoring import evaluate, trajectory_errors
 from jaxvo.tracking.hindsight import HindsightParams, sequence_masks as hindsight_masks
 
 __all__ = [

@@ -55,7 +55,7 @@ def test_library_runs_and_evaluates_without_the_cli():
     import sys
 
     code = ("import sys, jaxvo; jaxvo.run_sequence, jaxvo.evaluate, jaxvo.open_sequence; "
-            "from jaxvo.pipelines.run import run_sequence; from jaxvo.evaluation.report import evaluate; "
+            "from jaxvo.pipelines.run import run_sequence; from jaxvo.evaluation.scoring import evaluate; "
             "bad = [m for m in ('jaxvo.cli.main', 'click') if m in sys.modules]; assert not bad, bad")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]

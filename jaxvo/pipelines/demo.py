@@ -1,24 +1,54 @@
 """The work of ``jaxvo demo``: a synthetic dynamic scene, the three estimators, one table and figures."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Dict, Optional
 
 import numpy as np
 
 from jaxvo.camera import DEFAULT, camera_for_size
-from jaxvo.data.errors import DatasetError
-from jaxvo.data.tum import TumSequence
-from jaxvo.data.masks import load_mask, true_masks
+from jaxvo.data import DatasetError, TumSequence
+from jaxvo.evaluation.scoring import load_mask, true_masks
 from jaxvo.pipelines.mapping import moving_mask
-from jaxvo.pipelines.run import run_sequence
+from jaxvo.evaluation.metrics import ATEResult, RPEResult
+from jaxvo.pipelines.run import RunResult, run_sequence
 
-__all__ = ["run_demo", "DEMO_METHODS", "parse_size", "fmt", "progress_bar"]
+__all__ = ["run_demo", "DemoResult", "DemoMethod", "DEMO_METHODS", "parse_size", "fmt", "progress_bar"]
 DEMO_METHODS = ("classic", "huber", "ransac")
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoMethod:
+    """One estimator's numbers in the demo.
+
+    rpe: RPE over 1 frame (m/frame, deg/frame); ate: ATE after rigid alignment (m); run: the
+    :class:`jaxvo.pipelines.run.RunResult`; precision, recall, iou: its moving mask against the
+    true moving pixels, pooled over the reference frames (NaN where undefined).
+    """
+    rpe: RPEResult
+    ate: ATEResult
+    run: RunResult
+    precision: float
+    recall: float
+    iou: float
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoResult:
+    """What :func:`run_demo` made: ``table`` (the printed text), ``results`` (per method),
+    ``figures`` (name -> PNG path), ``wall_s`` (s) and ``overlay_frame`` (the frame index of
+    inliers_outliers.png)."""
+    table: str
+    results: Dict[str, DemoMethod]
+    figures: Dict[str, Path]
+    wall_s: float
+    overlay_frame: Optional[int]
 
 
 def parse_size(size) -> tuple:
@@ -67,9 +97,9 @@ def _sequence_matches(seq_dir: Path, name, frames, seed, cam, sensor) -> bool:
 
 
 def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", size: str = "320x240",
-             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS) -> dict:
-    """The work of ``jaxvo demo``; returns a dict with ``table`` (str), ``results`` (per method),
-    ``figures`` (paths) and ``wall_s``."""
+             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS) -> DemoResult:
+    """The work of ``jaxvo demo``: the sequence (reused under ``out_dir/sequence`` when it matches),
+    each method's run, table and figures, written into ``out_dir``; returns a :class:`DemoResult`."""
     from jaxvo import viz
     from jaxvo.evaluation.metrics import ate, mask_scores, rpe
     from jaxvo.config import Config
@@ -129,12 +159,12 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
             r1 = rpe(gt_t, gt_T, res.stamps, res.poses, 1, "f")
             a = ate(gt_t, gt_T, res.stamps, res.poses)
             tp, fp, fn, tn = (int(x) for x in counts)
-            results[method] = {
-                "rpe": r1, "ate": a, "run": res,
-                "precision": tp / (tp + fp) if tp + fp else float("nan"),
-                "recall": tp / (tp + fn) if tp + fn else float("nan"),
-                "iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"),
-            }
+            results[method] = DemoMethod(
+                rpe=r1, ate=a, run=res,
+                precision=tp / (tp + fp) if tp + fp else float("nan"),
+                recall=tp / (tp + fn) if tp + fn else float("nan"),
+                iou=tp / (tp + fp + fn) if tp + fp + fn else float("nan"),
+            )
     finally:
         if pbar is not None:
             pbar.close()
@@ -147,10 +177,10 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
             f"moving pixels per frame: {100 * cover.mean():.1f} % mean, {100 * cover.max():.1f} % max",
             head, units]
     for m, d in results.items():
-        rows.append(f"{m:<9}{1000 * d['rpe'].trans_stats.rmse:>11.2f}{d['rpe'].rot_stats.rmse:>10.3f}"
-                    f"{1000 * d['ate'].rmse:>9.1f}{fmt(d['run'].fps, 1):>7}"
-                    f"{float(np.mean(d['run'].inlier_ratio)):>9.3f}{fmt(d['precision'], 3):>11}"
-                    f"{fmt(d['recall'], 3):>10}")
+        rows.append(f"{m:<9}{1000 * d.rpe.trans_stats.rmse:>11.2f}{d.rpe.rot_stats.rmse:>10.3f}"
+                    f"{1000 * d.ate.rmse:>9.1f}{fmt(d.run.fps, 1):>7}"
+                    f"{float(np.mean(d.run.inlier_ratio)):>9.3f}{fmt(d.precision, 3):>11}"
+                    f"{fmt(d.recall, 3):>10}")
     table = "\n".join(rows)
 
     # figures
@@ -158,13 +188,13 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     t0 = seq.timestamps[0]
     keep = (gt_t >= seq.timestamps[0] - 0.05) & (gt_t <= seq.timestamps[-1] + 0.05)
     trajs = {"groundtruth": gt_T[keep, :3, 3]}
-    trajs.update({m: d["ate"].aligned[:, :3, 3] for m, d in results.items()})
+    trajs.update({m: d.ate.aligned[:, :3, 3] for m, d in results.items()})
     figs["trajectories"] = viz.save_figure(
         viz.plot_trajectories(trajs, title=f"{seq_name}: trajectories, top view (aligned to ground truth)"),
         out / "trajectories.png")
     figs["translational_error"] = viz.save_figure(
-        viz.plot_errors_over_time({m: d["rpe"].stamps_j - t0 for m, d in results.items()},
-                                  {m: 1000 * d["rpe"].trans for m, d in results.items()},
+        viz.plot_errors_over_time({m: d.rpe.stamps_j - t0 for m, d in results.items()},
+                                  {m: 1000 * d.rpe.trans for m, d in results.items()},
                                   ylabel="translational RPE [mm/frame]",
                                   title=f"{seq_name}: translational error per frame"),
         out / "translational_error.png")
@@ -194,15 +224,15 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     js = {"sequence": seq_name, "frames": frames, "size": size, "sensor": sensor, "seed": seed,
           "overlay_frame": show, "wall_s": wall, "methods": {}}
     for m, d in results.items():
-        js["methods"][m] = {"rpe_1f": d["rpe"].to_dict(), "ate": d["ate"].to_dict(),
-                            "fps": _clean(d["run"].fps), "compile_s": _clean(d["run"].compile_s),
-                            "inlier_ratio_mean": float(np.mean(d["run"].inlier_ratio)),
-                            "failures": d["run"].failures,
-                            "mask_precision": _clean(d["precision"]), "mask_recall": _clean(d["recall"]),
-                            "mask_iou": _clean(d["iou"])}
+        js["methods"][m] = {"rpe_1f": d.rpe.to_dict(), "ate": d.ate.to_dict(),
+                            "fps": _clean(d.run.fps), "compile_s": _clean(d.run.compile_s),
+                            "inlier_ratio_mean": float(np.mean(d.run.inlier_ratio)),
+                            "failures": d.run.failures,
+                            "mask_precision": _clean(d.precision), "mask_recall": _clean(d.recall),
+                            "mask_iou": _clean(d.iou)}
     (out / "results.json").write_text(json.dumps(js, indent=1) + "\n")
     (out / "results.md").write_text("```\n" + table + "\n```\n")
-    return {"table": table, "results": results, "figures": figs, "wall_s": wall, "overlay_frame": show}
+    return DemoResult(table, results, figs, wall, show)
 
 
 def _clean(x):

@@ -14,31 +14,30 @@ sequence's ``masks/`` folder (8-bit PNGs, 255 = moving pixel, listed by timestam
 ``masks.txt``; jaxvo synthetic and augmented sequences have them). ``labels=None``: all static.
 
 Voxel-grid downsampling (:func:`voxel_downsample`) averages positions and colours per voxel,
-static and moving points apart. :func:`write_ply` writes a binary little-endian PLY
-(float x, y, z; uchar red, green, blue) that Open3D, MeshLab and CloudCompare open;
-:func:`read_ply` reads it (and ASCII PLY) back. :func:`render_preview` splats the cloud into a
-PNG (a perspective view from behind and above the first camera, and a top view) with NumPy.
+static and moving points apart. :func:`render_preview` splats the cloud into a PNG (a
+perspective view from behind and above the first camera, and a top view) with NumPy.
+:func:`map_sequence` is ``jaxvo map``: a sequence folder and a trajectory file in, a PLY
+(:mod:`jaxvo.data.ply`) and optionally a preview out.
 """
 from __future__ import annotations
 
 import dataclasses
 import time
 from pathlib import Path
-from typing import Callable, Dict, Optional, Sequence, Tuple
+from typing import Callable, Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
 from jaxvo.data.masks import load_mask_of_size as load_mask, true_masks as read_moving_masks
-
-__all__ = ["MOVING_COLOUR", "PointCloud", "MapResult", "match_trajectory", "backproject_frame",
-           "outlier_mask", "moving_mask", "read_moving_masks", "load_mask", "voxel_downsample", "build_map", "write_ply",
-           "read_ply", "render_preview", "preview_image"]
+__all__ = ["MOVING_COLOUR", "PointCloud", "MapResult", "MapRun", "KeptPoses", "match_trajectory",
+           "backproject_frame", "outlier_mask", "moving_mask", "read_moving_masks", "load_mask", "voxel_downsample",
+           "build_map", "read_kept_poses", "map_sequence", "render_preview", "preview_image"]
 
 #: Colour of moving (outlier) points, RGB 0-255: the paper's outlier green (``jaxvo.viz.OUTLIER_COLOUR``).
 MOVING_COLOUR = (40, 220, 40)
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class PointCloud:
     """points (N, 3) float32 world metres, colors (N, 3) uint8 RGB, moving (N,) bool."""
     points: np.ndarray
@@ -68,7 +67,7 @@ class PointCloud:
         return c
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class MapResult:
     """What :func:`build_map` made.
 
@@ -93,7 +92,7 @@ class MapResult:
 def match_trajectory(frame_stamps, traj_stamps, traj_poses, max_dt: float = 0.02) -> Tuple[np.ndarray, np.ndarray]:
     """Poses for the frames: ``(frame indices (M,), T_world_cam (M, 4, 4))`` of the frames whose
     timestamp has a trajectory entry within ``max_dt`` seconds (one-to-one, nearest first)."""
-    from jaxvo.data.stamps import associate
+    from jaxvo.data import associate
 
     P = np.asarray(traj_poses, np.float64)
     ia, ib = associate(frame_stamps, traj_stamps, max_dt)
@@ -188,7 +187,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
               max_depth: float = 4.0, labels: Optional[str] = "estimate", config=None, seed: int = 0,
               stride: int = 1, max_dt: float = 0.02,
               progress: Optional[Callable[[int, int], None]] = None) -> MapResult:
-    """Coloured point cloud of a :class:`jaxvo.data.tum.TumSequence` from a trajectory.
+    """Coloured point cloud of a :class:`jaxvo.data.TumSequence` from a trajectory.
 
     Args:
       seq: the sequence (its camera must match the images).
@@ -207,7 +206,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
 
     Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
     """
-    from jaxvo.data.errors import DatasetError
+    from jaxvo.data import DatasetError
     from jaxvo.frame import make_frame
 
     t0 = time.perf_counter()
@@ -297,111 +296,6 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
         cloud = raw
     return MapResult(cloud, idx, poses, len(raw), np.asarray(mfrac), np.asarray(ratios),
                      time.perf_counter() - t0)
-
-
-# ----------------------------------------------------------------------------- PLY
-
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
-
-
-def write_ply(path, points, colors=None) -> Path:
-    """Write a binary little-endian PLY point cloud: float x, y, z and (if given) uchar red, green, blue.
-
-    points: (N, 3) float metres. colors: (N, 3) uint8 RGB (floats in [0, 1] are scaled by 255).
-    Opens in Open3D (``o3d.io.read_point_cloud``), MeshLab and CloudCompare. Returns the Path.
-    """
-    path = Path(path)
-    P = np.asarray(points, np.float32).reshape(-1, 3)
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    C = None
-    if colors is not None:
-        C = np.asarray(colors)
-        if C.shape != P.shape:
-            raise ValueError(f"colors must be (N, 3) like points {P.shape}, got {C.shape}")
-        if np.issubdtype(C.dtype, np.floating):
-            C = np.clip(np.round(C * 255.0), 0, 255)
-        C = C.astype(np.uint8)
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    rec = np.empty(len(P), dtype=fields)
-    rec["x"], rec["y"], rec["z"] = P[:, 0], P[:, 1], P[:, 2]
-    if C is not None:
-        rec["red"], rec["green"], rec["blue"] = C[:, 0], C[:, 1], C[:, 2]
-    header = ["ply", "format binary_little_endian 1.0", "comment written by jaxvo.pipelines.mapping",
-              f"element vertex {len(P)}", "property float x", "property float y", "property float z"]
-    if C is not None:
-        header += ["property uchar red", "property uchar green", "property uchar blue"]
-    header += ["end_header"]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        f.write(rec.tobytes())
-    return path
-
-
-def read_ply(path) -> Tuple[np.ndarray, Optional[np.ndarray]]:
-    """Read the vertices of a PLY file (binary little/big endian or ASCII; scalar vertex properties).
-
-    Returns ``(points (N, 3) float64, colors (N, 3) uint8 or None)``. Other elements after the
-    vertices (faces) are ignored. Raises ValueError naming the file for malformed input.
-    """
-    path = Path(path)
-    with open(path, "rb") as f:
-        data = f.read()
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise ValueError(f"{path}: not a PLY file")
-    nl = data.find(b"\n", end)
-    header = data[:end].decode("ascii", "replace").splitlines()
-    body = data[nl + 1:]
-    fmt, elements, cur = None, [], None
-    for ln in header:
-        t = ln.split()
-        if not t:
-            continue
-        if t[0] == "format":
-            fmt = t[1]
-        elif t[0] == "element":
-            cur = [t[1], int(t[2]), []]
-            elements.append(cur)
-        elif t[0] == "property" and cur is not None:
-            if t[1] == "list":
-                cur[2].append((t[-1], None))
-            else:
-                if t[1] not in _PLY_TYPES:
-                    raise ValueError(f"{path}: unknown PLY property type {t[1]!r}")
-                cur[2].append((t[2], _PLY_TYPES[t[1]]))
-    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
-        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
-    if not elements or elements[0][0] != "vertex":
-        raise ValueError(f"{path}: the first PLY element is not 'vertex'")
-    _, n, props = elements[0]
-    if any(t is None for _, t in props):
-        raise ValueError(f"{path}: list properties on vertices are not supported")
-    if fmt == "ascii":
-        rows = body.decode("ascii").split("\n")[:n]
-        arr = np.loadtxt(rows, ndmin=2) if n else np.zeros((0, len(props)))
-        rec = {name: arr[:, k] for k, (name, _) in enumerate(props)}
-    else:
-        e = "<" if fmt == "binary_little_endian" else ">"
-        dt = np.dtype([(name, e + t) for name, t in props])
-        if len(body) < n * dt.itemsize:
-            raise ValueError(f"{path}: file is truncated ({len(body)} bytes of vertex data, "
-                             f"expected {n * dt.itemsize})")
-        rec = np.frombuffer(body, dtype=dt, count=n)
-    names = [p for p, _ in props]
-    for c in "xyz":
-        if c not in names:
-            raise ValueError(f"{path}: vertex property {c!r} missing")
-    P = np.stack([np.asarray(rec[c], np.float64) for c in "xyz"], 1)
-    C = None
-    if all(c in names for c in ("red", "green", "blue")):
-        C = np.stack([np.asarray(rec[c]) for c in ("red", "green", "blue")], 1)
-        if np.issubdtype(C.dtype, np.floating) and C.max(initial=0) <= 1.0:
-            C = C * 255.0
-        C = np.clip(np.round(C), 0, 255).astype(np.uint8)
-    return P, C
 
 
 # ----------------------------------------------------------------------------- preview
@@ -518,3 +412,88 @@ def render_preview(points, colors, path_png, poses=None, size: Tuple[int, int] =
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+# ----------------------------------------------------------------------------- jaxvo map
+
+class KeptPoses(NamedTuple):
+    """The poses of a trajectory file that a map or masks may use (:func:`read_kept_poses`):
+    stamps (M,) s, poses (M, 4, 4) T_world_cam, held: how many held poses were left out."""
+    stamps: np.ndarray
+    poses: np.ndarray
+    held: int
+
+
+def read_kept_poses(traj) -> KeptPoses:
+    """The poses of a trajectory file less those ``jaxvo run`` marked held (its estimate failed and
+    the previous pose was kept: a guess). DatasetError when the file is missing or has no pose.
+    A ground-truth file (groundtruth.txt) may repeat a timestamp (TUM's tools keep the first);
+    an estimate may not."""
+    from jaxvo.data import DatasetError, read_pose_file
+    from jaxvo.data.trajectory import read_held
+
+    if not Path(traj).is_file():
+        raise DatasetError(f"{traj}: trajectory file not found")
+    t, T = read_pose_file(traj, duplicates="first" if Path(traj).name == "groundtruth.txt" else "error")
+    if len(t) == 0:
+        raise DatasetError(f"{traj}: no poses in the trajectory file")
+    held = np.isin(t, read_held(traj))
+    return KeptPoses(t[~held], T[~held], int(held.sum()))
+
+
+@dataclasses.dataclass(frozen=True)
+class MapRun:
+    """What :func:`map_sequence` wrote: the map (:class:`MapResult`), the sequence, the held
+    poses of the trajectory left out, the labels used, the PLY file and the preview (or None)."""
+    map: MapResult
+    sequence: object
+    held: int
+    labels: Optional[str]
+    ply: Path
+    preview: Optional[Path]
+
+
+def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 0.01, method: str = "ransac",
+                 max_frames: Optional[int] = None, max_depth: float = 4.0, preview=None,
+                 labels: Optional[str] = "estimate", seed: int = 0, camera_preset: Optional[str] = None,
+                 depth_scale: Optional[float] = None, max_dt: float = 0.02, force: bool = False,
+                 on_start: Optional[Callable] = None,
+                 progress: Optional[Callable[[int, int], None]] = None) -> MapRun:
+    """``jaxvo map``: the map of a sequence folder from a trajectory file, as a PLY file.
+
+    The trajectory's held poses are left out (:func:`read_kept_poses`); the rest go to
+    :func:`build_map` (``labels``, ``every``, ``voxel`` metres, ``max_depth`` metres, estimator
+    ``method``, ``seed``, ``max_dt`` s) with the sequence opened as ``jaxvo run`` would
+    (:func:`jaxvo.pipelines.run.load_sequence`). ``out_ply`` gets the cloud in its display
+    colours, ``preview`` a PNG rendering (:func:`render_preview`); both are written under
+    ``.partial`` names and renamed when complete, and refused where they would replace or land
+    inside an input (unless ``force``). ``on_start(seq, held)`` is called once the sequence is
+    open, before the work; ``progress(done, total)`` after each frame used.
+    """
+    from jaxvo.config import Config
+    from jaxvo.data.outputs import check_output, finish, partial_path
+    from jaxvo.data.ply import write_ply
+    from jaxvo.data import DatasetError
+    from jaxvo.pipelines.run import load_sequence
+
+    kept = read_kept_poses(traj)
+    check_output(out_ply, [sequence_dir, traj], force)
+    if preview is not None:
+        check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
+    seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
+    if on_start is not None:
+        on_start(seq, kept.held)
+    res = build_map(seq, kept.stamps, kept.poses, every=every, voxel=voxel, max_depth=max_depth, labels=labels,
+                    config=Config(method=method), seed=seed, max_dt=max_dt, progress=progress)
+    cloud = res.cloud
+    if len(cloud) == 0:
+        raise DatasetError(f"{sequence_dir}: no pixel with valid depth <= {max_depth} m in the frames used")
+    tmp = partial_path(out_ply, keep_suffix=True)
+    write_ply(tmp, cloud.points, cloud.display_colors())
+    finish(tmp, out_ply)
+    if preview is not None:
+        tmp = partial_path(preview, keep_suffix=True)
+        render_preview(cloud.points, cloud.display_colors(), tmp, poses=res.poses,
+                       title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else ""))
+        finish(tmp, preview)
+    return MapRun(res, seq, kept.held, labels, Path(out_ply), None if preview is None else Path(preview))

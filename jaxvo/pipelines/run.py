@@ -1,38 +1,67 @@
-"""Run a sequence through the tracker: the library side of ``jaxvo run``.
+"""Run sequences through the tracker: the library side of ``jaxvo run``.
 
-:func:`run_sequence` tracks a :class:`jaxvo.data.tum.TumSequence` with
+One sequence: :func:`run_sequence` tracks a :class:`jaxvo.data.TumSequence` with
 :func:`jaxvo.tracking.odometry.track`, writes the trajectory as it goes and returns a
-:class:`RunResult`; :func:`resolve_camera` finds a folder's intrinsics and
-:func:`load_config` reads a :class:`jaxvo.config.Config` from a JSON file.
-Bad input raises :class:`jaxvo.data.errors.DatasetError` / ``ValueError`` with a
-one-line message naming the file.
+:class:`RunResult`; :func:`run_sequences` does so for several sequences of one image size as
+one batch. Folders, as ``jaxvo run`` takes them, in three steps:
+
+* :func:`setup_run`: the config, keyframe policy, seed and reader options of a run, from
+  options and a config file, which may be a trajectory written by an earlier run (its ``#``
+  header, :func:`read_run_settings`, reruns it);
+* :func:`plan_run`: the sequence folders opened (a folder of sequence folders stands for them,
+  :func:`expand_sequences`), their first frames and ground truth read, the outputs checked,
+  the sequences grouped into batches by image size;
+* :func:`execute_run`: the tracking, each trajectory written under its ``.partial`` name and
+  renamed when complete, the errors against ground truth; a :class:`RunReport`.
+
+:func:`resolve_camera` finds a folder's intrinsics and :func:`load_config` reads a
+:class:`jaxvo.config.Config` from a JSON file. Bad input raises
+:class:`jaxvo.data.DatasetError` / ``ValueError`` with a one-line message naming the file.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from pathlib import Path
-from typing import Callable, List, Optional
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from jaxvo.runtime import machine
 from jaxvo.camera import PRESETS, Camera
-from jaxvo.data.errors import DatasetError
-from jaxvo.data.layouts import open_sequence
-from jaxvo.data.tum import TumSequence
+from jaxvo.data.outputs import check_output, finish, partial_path
+from jaxvo.data import DatasetError, TumSequence, find_sequences, open_sequence
+from jaxvo.evaluation.scoring import TrajectoryErrors, trajectory_errors
 from jaxvo.pipelines.mapping import moving_mask
+from jaxvo.pipelines.messages import one_line
 
-__all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header", "load_sequence", "resolve_camera", "stamp_name"]
+__all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header",
+           "load_sequence", "resolve_camera", "stamp_name", "RunSettings", "ReaderOptions", "RunSetup", "RunPlan",
+           "SequenceRun", "RunReport", "track_policy", "expand_sequences", "setup_run", "plan_run", "execute_run",
+           "count_poses"]
 
 
-def read_run_settings(path) -> dict:
-    """The settings stored in ``path``: a JSON object of Config fields (-> ``{"config": {...}}``), or a
-    trajectory file written by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) gives
-    ``config`` and ``track`` (dicts of fields), ``seed`` (int), ``method``, ``sequence`` (the
-    reader's settings: path, start, frames, depth_scale, max_dt, camera, mask_dir) and
-    ``machine`` (:func:`jaxvo.runtime.machine.record` of the machine that wrote it; older files lack it).
+@dataclasses.dataclass(frozen=True)
+class RunSettings:
+    """The settings a config file holds (:func:`read_run_settings`), JSON values as read.
+
+    config: Config fields. The rest only in a trajectory file's header (else None): track
+    (TrackConfig fields), seed, sequence (the reader's settings: path, reader, start, frames,
+    depth_scale, max_dt, camera, mask_dir) and machine (:func:`jaxvo.runtime.machine.record`
+    of the machine that wrote it; older files lack it).
+    """
+    config: dict
+    track: Optional[dict] = None
+    seed: Optional[int] = None
+    sequence: Optional[dict] = None
+    machine: Optional[dict] = None
+
+
+def read_run_settings(path) -> RunSettings:
+    """The settings stored in ``path``: a JSON object of Config fields, or a trajectory file written
+    by :func:`run_sequence`, whose ``#`` header (:func:`run_header`) holds them all.
     Raises DatasetError naming the file when it is missing, malformed or has no jaxvo header.
     """
     p = Path(path)
@@ -59,7 +88,7 @@ def read_run_settings(path) -> dict:
                     raise DatasetError(f"{p}: malformed '# {key}:' header line ({e.msg})") from None
         if "config" not in found:
             raise DatasetError(f"{p}: no '# config: {{...}}' header line (not a trajectory written by jaxvo run)")
-        return found
+        return RunSettings(**found)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
@@ -67,7 +96,7 @@ def read_run_settings(path) -> dict:
             from None
     if not isinstance(data, dict):
         raise DatasetError(f"{p}: expected a JSON object of Config fields, got {type(data).__name__}")
-    return {"config": data}
+    return RunSettings(config=data)
 
 
 def load_config(path=None, **overrides):
@@ -78,7 +107,7 @@ def load_config(path=None, **overrides):
     """
     from jaxvo.config import Config
 
-    values = dict(read_run_settings(path)["config"]) if path is not None else {}
+    values = dict(read_run_settings(path).config) if path is not None else {}
     values.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return Config.from_json(values)
@@ -113,7 +142,7 @@ def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> 
 
 def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
                   **kwargs) -> TumSequence:
-    """Open a sequence folder of any supported layout (:func:`jaxvo.data.layouts.open_sequence`) with the
+    """Open a sequence folder of any supported layout (:func:`jaxvo.data.open_sequence`) with the
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
     (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
@@ -139,7 +168,7 @@ def stamp_name(t: float) -> str:
     return f"{float(t):.6f}"
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class RunResult:
     """What :func:`run_sequence` did.
 
@@ -300,3 +329,268 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
         for rec in recs:
             rec.close()
     return [rec.result(interrupted) for rec in recs]
+
+
+# ----------------------------------------------------------------------------- folders, as jaxvo run takes them
+
+def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
+                 segment: Optional[bool] = None):
+    """:class:`jaxvo.config.TrackConfig` from ``jaxvo run``'s options on top of ``base`` (default
+    ``TrackConfig()``, jaxvo's segmented keyframes): ``frame_to_frame`` (the paper's chaining),
+    ``gap`` / ``lag`` in frames (lag defaults to gap // 2; None keeps base's; a gap turns off the
+    calm frame-to-frame mode), ``segment`` (None keeps base's). A bad combination raises
+    ValueError naming the options."""
+    from jaxvo.config import TrackConfig
+
+    base = TrackConfig() if base is None else base
+    if frame_to_frame or (gap == 1 and not lag):
+        base, gap = TrackConfig.frame_to_frame(), None
+    if gap is None:
+        policy = base if lag is None else base._replace(lag=int(lag))
+    elif int(gap) == 1:
+        policy = TrackConfig.frame_to_frame(lag=0 if lag is None else int(lag))
+    else:
+        # an explicit gap is kept on static stretches too (no frame to frame while calm)
+        policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag), calm_fraction=0.0)
+    if segment is not None:
+        policy = policy._replace(segment=bool(segment))
+    try:
+        policy.validate()
+    except ValueError:
+        raise ValueError(f"--keyframe-lag {policy.lag} must be smaller than --keyframe-gap {policy.max_gap}") \
+            from None
+    return policy
+
+
+def expand_sequences(paths) -> List[Path]:
+    """The sequence folders ``paths`` name: each path as it is, except a folder that is not a
+    sequence itself but holds sequence folders (rgb.txt + depth.txt), which stands for them."""
+    dirs = []
+    for p in map(Path, paths):
+        inner = find_sequences(p) if p.is_dir() else []
+        if inner == [p]:
+            inner = []              # a TUM-layout sequence folder itself
+        if inner:
+            try:
+                open_sequence(p, max_frames=1)
+                inner = []          # a sequence of another layout (ICL-NUIM, Redwood): itself
+            except (DatasetError, ValueError):
+                pass
+        dirs += inner or [p]
+    return dirs
+
+
+@dataclasses.dataclass(frozen=True)
+class ReaderOptions:
+    """How :func:`load_sequence` opens a folder: an intrinsics preset name and single values
+    (pixels), depth scale (PNG value / scale = metres; None = the layout's), max_dt (largest
+    colour/depth and estimate/ground-truth stamp difference, s), the first frame, the number of
+    frames (None = all) and a folder of user masks."""
+    camera_preset: Optional[str] = None
+    fx: Optional[float] = None
+    fy: Optional[float] = None
+    cx: Optional[float] = None
+    cy: Optional[float] = None
+    depth_scale: Optional[float] = None
+    max_dt: float = 0.02
+    start: int = 0
+    max_frames: Optional[int] = None
+    mask_dir: Optional[Path] = None
+
+    def open(self, path) -> TumSequence:
+        """The sequence folder ``path`` opened with these options."""
+        return load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy,
+                             depth_scale=self.depth_scale, max_dt=self.max_dt, start=self.start,
+                             max_frames=self.max_frames, mask_dir=self.mask_dir)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSetup:
+    """What a run uses (:func:`setup_run`): config, keyframe policy (TrackConfig), seed, reader
+    options, and how the machine that wrote the config file differs from this one
+    (``"name: recorded -> current"`` each; there a rerun may differ at float rounding)."""
+    config: object
+    policy: object
+    seed: int
+    reader: ReaderOptions
+    machine_differences: Tuple[str, ...] = ()
+
+
+def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=None, finest_level=None,
+              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None,
+              frame_to_frame: bool = False, paper: bool = False, camera_preset=None, fx=None, fy=None, cx=None,
+              cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None,
+              from_header: bool = True) -> RunSetup:
+    """The settings of a run: options given (None = not given) over a config file's.
+
+    ``config_file`` is a JSON object of Config fields, or a trajectory written by
+    :func:`run_sequence`: its header gives the config, seed, keyframe policy and, with
+    ``from_header`` (one sequence), the reader's settings (start, frames, max_dt, depth scale,
+    user masks, intrinsics), so the run is reproduced bitwise on the same machine. Options not
+    given and not in the file take their defaults (seed 0, start 0, max_dt 0.02 s).
+    ``paper``: :meth:`jaxvo.config.Config.paper` and frame to frame; ``keyframe_gap``,
+    ``keyframe_lag``, ``segment``, ``frame_to_frame``: :func:`track_policy`.
+    """
+    from jaxvo.config import Config, TrackConfig
+
+    settings = read_run_settings(config_file) if config_file is not None else RunSettings(config={})
+    diffs: List[str] = []
+    if settings.machine is not None:
+        if not isinstance(settings.machine, dict):
+            raise DatasetError(f"{config_file}: '# machine:' header: expected a JSON object, got "
+                               f"{settings.machine!r}")
+        diffs = machine.differences(settings.machine, machine.record())
+    config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
+                         finest_level=finest_level)
+    if seed is None:
+        seed = int(settings.seed) if settings.seed is not None else 0
+    try:
+        base = TrackConfig.from_json(settings.track) if settings.track is not None else None
+    except (ValueError, TypeError) as e:
+        raise DatasetError(f"{config_file}: '# track:' header: {e}") from None
+    if paper:
+        config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
+                              finest_level=config.finest_level)
+    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment)
+    sq = (settings.sequence or {}) if from_header else {}
+    if sq:
+        start = sq.get("start", 0) if start is None else start
+        max_frames = sq.get("frames") if max_frames is None else max_frames
+        max_dt = sq.get("max_dt", 0.02) if max_dt is None else max_dt
+        depth_scale = sq.get("depth_scale") if depth_scale is None else depth_scale
+        mask_dir = sq.get("mask_dir") if mask_dir is None else mask_dir
+        c = sq.get("camera")
+        if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4 and isinstance(c, dict):
+            fx, fy, cx, cy = c.get("fx"), c.get("fy"), c.get("cx"), c.get("cy")
+    reader = ReaderOptions(camera_preset, fx, fy, cx, cy, depth_scale, 0.02 if max_dt is None else max_dt,
+                           0 if start is None else start, max_frames, mask_dir)
+    return RunSetup(config, policy, int(seed), reader, tuple(diffs))
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPlan:
+    """A run ready to go (:func:`plan_run`): its setup, the sequences (opened, first frame and
+    ground truth read), each one's trajectory file, the outlier-mask folder (one sequence only)
+    and the batches: indices of the sequences of one image size, tracked together."""
+    setup: RunSetup
+    sequences: Tuple[TumSequence, ...]
+    outputs: Tuple[Path, ...]
+    batches: Tuple[Tuple[int, ...], ...]
+    save_masks: Optional[Path] = None
+
+
+def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", save_masks=None,
+             config_file=None, force: bool = False) -> RunPlan:
+    """Open the sequence folders and check the outputs before anything is tracked.
+
+    One folder: its trajectory goes to ``out`` (default traj.txt), its outlier masks to
+    ``save_masks``. Several: each trajectory to ``out_dir/<sequence name>.txt`` (``-k`` appended
+    to names that repeat), created here. Outputs that would replace or land inside an input
+    (the folders, ``config_file``, the user masks) raise DatasetError unless ``force``; so do a
+    sequence of fewer than 2 frames, a first frame that does not read and ground truth that does
+    not cover the frames.
+    """
+    dirs = [Path(d) for d in sequence_dirs]
+    if len(dirs) == 1:
+        out = Path("traj.txt") if out is None else Path(out)
+        inputs = [dirs[0], config_file, setup.reader.mask_dir]
+        check_output(out, inputs, force, "--out")
+        if save_masks is not None:
+            check_output(save_masks, inputs, force, "--save-masks")
+        seq = setup.reader.open(dirs[0])
+        if len(seq) < 2:
+            raise DatasetError(f"{dirs[0]}: only {len(seq)} frame(s) to use, need at least 2")
+        seq.check(1)                 # a bad first image is reported before compiling
+        seq.groundtruth              # and so is ground truth that does not cover the frames
+        return RunPlan(setup, (seq,), (out,), ((0,),), None if save_masks is None else Path(save_masks))
+    seqs = [setup.reader.open(d) for d in dirs]
+    names = [seq.name for seq in seqs]
+    out_dir = Path(out_dir)
+    outs = [out_dir / (f"{n}.txt" if names.count(n) == 1 else f"{n}-{k}.txt") for k, n in enumerate(names)]
+    for seq, o in zip(seqs, outs):
+        if len(seq) < 2:
+            raise DatasetError(f"{seq.path}: only {len(seq)} frame(s) to use, need at least 2")
+        check_output(o, [s.path for s in seqs] + [config_file], force, "--out-dir")
+        seq.check(1)
+    groups: dict = {}
+    for k, seq in enumerate(seqs):
+        groups.setdefault((seq.camera.width, seq.camera.height), []).append(k)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise DatasetError(f"--out-dir {out_dir}: cannot create it ({e.strerror or e})") from None
+    return RunPlan(setup, tuple(seqs), tuple(outs), tuple(tuple(g) for g in groups.values()))
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceRun:
+    """One sequence of a :class:`RunReport`: the sequence, its :class:`RunResult`, where its
+    trajectory is (under its ``.partial`` name when the run was interrupted) and its errors
+    against the sequence's ground truth (None without ground truth)."""
+    sequence: TumSequence
+    result: RunResult
+    trajectory: Path
+    errors: Optional[TrajectoryErrors]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunReport:
+    """What :func:`execute_run` did: one :class:`SequenceRun` per sequence tracked (in the plan's
+    order; an interrupted batch run lacks the batches it did not reach) and whether Ctrl-C ended it."""
+    runs: Tuple[SequenceRun, ...]
+    interrupted: bool
+
+
+def count_poses(path) -> int:
+    """The number of pose lines in a trajectory file (0 when it cannot be read)."""
+    try:
+        return sum(1 for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.startswith("#"))
+    except OSError:
+        return 0
+
+
+def execute_run(plan: RunPlan, pbar=None, on_pair: Optional[Callable] = None) -> RunReport:
+    """Track the plan's sequences: one alone with :func:`run_sequence`, several batch by batch with
+    :func:`run_sequences`. Each trajectory grows under its ``.partial`` name (flushed line by line)
+    and gets its name when the run completes. ``on_pair(k, step)`` is called with the sequence's
+    index in the plan and each :class:`jaxvo.tracking.odometry.TrackStep`; ``pbar`` (tqdm) advances
+    once per frame. A failure raises DatasetError saying where the finished poses are kept.
+    """
+    s = plan.setup
+    if len(plan.sequences) == 1:
+        seq, out = plan.sequences[0], plan.outputs[0]
+        partial = partial_path(out)
+        try:
+            res = run_sequence(seq, s.config, s.seed, out=partial, save_masks=plan.save_masks, pbar=pbar,
+                               policy=s.policy, on_pair=None if on_pair is None else functools.partial(on_pair, 0))
+        except (DatasetError, ValueError, OSError) as e:
+            n = count_poses(partial)
+            raise DatasetError(one_line(e) + (f" ({n} finished poses kept in {partial})" if n else "")) from None
+        if not res.interrupted:
+            finish(partial, out)
+        gt = seq.groundtruth
+        errors = trajectory_errors(gt, res.stamps, res.poses, s.reader.max_dt) if gt is not None else None
+        return RunReport((SequenceRun(seq, res, partial if res.interrupted else out, errors),), res.interrupted)
+    results: dict = {}
+    try:
+        for ks in plan.batches:
+            res = run_sequences([plan.sequences[k] for k in ks], s.config, s.seed,
+                                [partial_path(plan.outputs[k]) for k in ks], pbar=pbar, policy=s.policy,
+                                on_pair=None if on_pair is None else (lambda j, step, ks=ks: on_pair(ks[j], step)))
+            results.update(zip(ks, res))
+            if any(r.interrupted for r in res):
+                break
+    except (DatasetError, ValueError, OSError) as e:
+        raise DatasetError(one_line(e) + " (finished poses kept in the .partial trajectories)") from None
+    interrupted = any(r.interrupted for r in results.values()) or len(results) < len(plan.sequences)
+    runs = []
+    for k, seq in enumerate(plan.sequences):
+        if k not in results:
+            continue
+        r, out = results[k], plan.outputs[k]
+        if not interrupted:
+            finish(partial_path(out), out)
+        gt = seq.groundtruth
+        errors = trajectory_errors(gt, r.stamps, r.poses, seq.max_dt) if gt is not None else None
+        runs.append(SequenceRun(seq, r, partial_path(out) if interrupted else out, errors))
+    return RunReport(tuple(runs), interrupted)

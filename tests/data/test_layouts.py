@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.cli.main import main
 from jaxvo.data import (DatasetError, IclNuimSequence, RedwoodSequence, TumSequence, check_depth_scale,
-                        open_sequence)
+                            open_sequence)
 from jaxvo.data.trajectory import read_tum_trajectory
 
 W, H = 424, 240
@@ -189,6 +189,6 @@ def test_mask_dir_fills_frame_mask_and_changes_the_trajectory(seq424, tmp_path):
 
 
 def _true_masks(seq_dir):
-    from jaxvo.data.masks import true_masks
+    from jaxvo.evaluation.scoring import true_masks
 
     return true_masks(seq_dir)

@@ -10,8 +10,9 @@ from click.testing import CliRunner
 from jaxvo.tracking import hindsight
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.data.tum import TumSequence
-from jaxvo.data.masks import load_mask_of_size as load_mask, read_mask_dir, true_masks as read_moving_masks
+from jaxvo.data import TumSequence
+from jaxvo.evaluation.scoring import read_mask_dir
+from jaxvo.pipelines.mapping import load_mask, read_moving_masks
 from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
 CAM = DEFAULT.at_level(2)      # 160x120
@@ -232,7 +233,8 @@ def test_map_with_hindsight_labels(seq1, tmp_path):
     """``jaxvo map --hindsight`` paints the moving points of the frames used from the hindsight masks
     (every matched frame a view): the person's share of the map's points is near its share of the
     frames' valid pixels, and the static room stays in its colours."""
-    from jaxvo.pipelines.mapping import MOVING_COLOUR, read_ply
+    from jaxvo.data.ply import read_ply
+    from jaxvo.pipelines.mapping import MOVING_COLOUR
     out = tmp_path / "m.ply"
     r = CliRunner().invoke(main, ["map", str(seq1), str(seq1.parent / "traj.txt"), str(out), "--hindsight",
                                   "--every", "10", "--voxel", "0", "--no-progress"])

@@ -33,7 +33,7 @@ from jaxvo.data.tum import TumSequence
 from jaxvo.data.trajectory import read_tum_trajectory
 from jaxvo.validation import check_fields, real
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CAM = DEFAULT.at_level(2)          # 160x120
 
 

@@ -27,7 +27,7 @@ from jaxvo.cli.main import main
 from jaxvo.data.layouts import data_root
 from jaxvo.data.trajectory import read_tum_trajectory
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FR2_DESK = data_root() / "tum" / "rgbd_dataset_freiburg2_desk"
 
 # Measured on the 50-frame freiburg2_desk excerpt with the default Config (seed 0), translational

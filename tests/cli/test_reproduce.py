@@ -47,8 +47,8 @@ def test_trajectory_header_round_trip_reproduces_the_file_bitwise(tmp_path):
     head = [ln for ln in first.read_text().splitlines() if ln.startswith("#")]
     assert head[0].startswith(f"# jaxvo {jaxvo.__version__}")
     s = read_run_settings(first)
-    assert s["seed"] == 7 and s["config"]["method"] == "huber" and s["config"]["thresh_lum"] == 21.5
-    assert s["track"]["max_gap"] == 2 and s["sequence"]["start"] == 1 and s["sequence"]["frames"] == 3
+    assert s.seed == 7 and s.config["method"] == "huber" and s.config["thresh_lum"] == 21.5
+    assert s.track["max_gap"] == 2 and s.sequence["start"] == 1 and s.sequence["frames"] == 3
 
     again = tmp_path / "again.txt"
     r = CliRunner().invoke(main, ["run", str(seq), "--config", str(first), "--out", str(again), "--no-progress"])
@@ -58,7 +58,7 @@ def test_trajectory_header_round_trip_reproduces_the_file_bitwise(tmp_path):
     other = tmp_path / "other.txt"
     r = CliRunner().invoke(main, ["run", str(seq), "--config", str(first), "--seed", "8", "--out", str(other),
                                   "--no-progress"])
-    assert r.exit_code == 0 and read_run_settings(other)["seed"] == 8
+    assert r.exit_code == 0 and read_run_settings(other).seed == 8
 
 
 def test_config_file_errors_are_one_line(tmp_path):
@@ -83,7 +83,7 @@ def test_header_records_the_machine_and_a_rerun_elsewhere_says_so(tmp_path):
     first = tmp_path / "first.txt"
     r = CliRunner().invoke(main, ["run", str(seq), "--out", str(first), "--method", "classic", "--no-progress"])
     assert r.exit_code == 0, r.output
-    rec = read_run_settings(first)["machine"]
+    rec = read_run_settings(first).machine
     assert rec == machine.record()
     assert rec["cores"] == len(os.sched_getaffinity(0)) >= 1 and rec["jax"] == jax.__version__
     again = tmp_path / "again.txt"

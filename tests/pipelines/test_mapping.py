@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from jaxvo.data import ply
 from jaxvo.pipelines import mapping
 from jaxvo.camera import DEFAULT
 from jaxvo.data import DatasetError, TumSequence
@@ -22,9 +23,9 @@ def test_ply_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     P = rng.normal(size=(1234, 3)).astype(np.float32) * 3
     C = rng.integers(0, 256, size=(1234, 3), dtype=np.uint8)
-    path = mapping.write_ply(tmp_path / "c.ply", P, C)
+    path = ply.write_ply(tmp_path / "c.ply", P, C)
     assert path.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
-    P2, C2 = mapping.read_ply(path)
+    P2, C2 = ply.read_ply(path)
     assert P2.shape == (1234, 3) and C2.shape == (1234, 3)
     np.testing.assert_array_equal(P2.astype(np.float32), P)
     np.testing.assert_array_equal(C2, C)
@@ -43,15 +44,15 @@ def test_ply_ascii_and_errors(tmp_path):
     p.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
                  "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
                  "end_header\n0 1 2 255 0 0\n3 4 5 0 0 255\n")
-    P, C = mapping.read_ply(p)
+    P, C = ply.read_ply(p)
     np.testing.assert_array_equal(P, [[0, 1, 2], [3, 4, 5]])
     np.testing.assert_array_equal(C, [[255, 0, 0], [0, 0, 255]])
     bad = tmp_path / "bad.ply"
     bad.write_bytes(b"not a ply")
     with pytest.raises(ValueError, match="not a PLY"):
-        mapping.read_ply(bad)
-    empty = mapping.write_ply(tmp_path / "e.ply", np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
-    assert mapping.read_ply(empty)[0].shape == (0, 3)
+        ply.read_ply(bad)
+    empty = ply.write_ply(tmp_path / "e.ply", np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
+    assert ply.read_ply(empty)[0].shape == (0, 3)
 
 
 def test_voxel_downsample():

@@ -7,7 +7,8 @@ from click.testing import CliRunner
 
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.pipelines.mapping import MOVING_COLOUR, read_ply
+from jaxvo.data.ply import read_ply
+from jaxvo.pipelines.mapping import MOVING_COLOUR
 from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
 

@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from jaxvo.cli.main import main
 from jaxvo.data import DatasetError, find_sequence
-from jaxvo.evaluation.report import evaluate
+from jaxvo.evaluation.scoring import evaluate
 from jaxvo.data.trajectory import read_tum_trajectory
 
 
@@ -34,22 +34,22 @@ def test_ate_and_frame_rpe_match_evo(bonn_crowd, tmp_path):
     # the written ground truth is the converted one jaxvo evaluates with
     ours = evaluate(bonn_crowd, est, delta=1, delta_unit="f", max_dt=0.02)
     t, T = read_tum_trajectory(gt)
-    np.testing.assert_allclose(T, ours["gt"][1], atol=1e-6)
+    np.testing.assert_allclose(T, ours.gt[1], atol=1e-6)
 
     ref = file_interface.read_tum_trajectory_file(str(gt))
     traj = file_interface.read_tum_trajectory_file(str(est))
     ref, traj = evo_sync.associate_trajectories(ref, traj, max_diff=0.02)
-    assert traj.num_poses == ours["ate"].stats.n == 8
+    assert traj.num_poses == ours.ate.stats.n == 8
 
     def rpe(relation):
         m = metrics.RPE(relation, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
         m.process_data((ref, traj))
         return m.get_statistic(metrics.StatisticsType.rmse)
 
-    np.testing.assert_allclose(rpe(metrics.PoseRelation.translation_part), ours["rpe"].trans_stats.rmse, rtol=1e-5)
-    np.testing.assert_allclose(rpe(metrics.PoseRelation.rotation_angle_deg), ours["rpe"].rot_stats.rmse,
+    np.testing.assert_allclose(rpe(metrics.PoseRelation.translation_part), ours.rpe.trans_stats.rmse, rtol=1e-5)
+    np.testing.assert_allclose(rpe(metrics.PoseRelation.rotation_angle_deg), ours.rpe.rot_stats.rmse,
                                rtol=1e-4, atol=1e-6)
     traj.align(ref, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, traj))
-    np.testing.assert_allclose(ape.get_statistic(metrics.StatisticsType.rmse), ours["ate"].rmse, rtol=1e-5)
+    np.testing.assert_allclose(ape.get_statistic(metrics.StatisticsType.rmse), ours.ate.rmse, rtol=1e-5)
