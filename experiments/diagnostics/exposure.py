@@ -9,18 +9,15 @@ and the fraction of them under the paper's |luminance residual| < 30; then ``est
 (default Config, optionally ``brightness="offset"``) started from the true pose, and how far its
 result is from it. Used to diagnose Bonn crowd frames 105-130 (docs/results.md).
 
-    python experiments/exposure.py                             # Bonn crowd, the default pairs
-    python experiments/exposure.py SEQ --pairs 60-61,109-120
+    python -m experiments.diagnostics.exposure                             # Bonn crowd, the default pairs
+    python -m experiments.diagnostics.exposure SEQ --pairs 60-61,109-120
 """
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+from experiments import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -40,7 +37,7 @@ def parse_args(argv=None):
     ap.add_argument("sequence", nargs="?", default=None,
                     help="TUM-layout folder with ground truth (default: data_root()/bonn/rgbd_bonn_crowd)")
     ap.add_argument("--pairs", default=DEFAULT_PAIRS, help=f"comma list of REF-CUR frame indices ({DEFAULT_PAIRS})")
-    ap.add_argument("--out", default=str(common.RESULTS / "exposure.md"), help="markdown output (JSON next to it)")
+    ap.add_argument("--out", default=str(common.RESULTS / "exposure" / "exposure.md"), help="markdown output (JSON next to it)")
     a = ap.parse_args(argv)
     try:
         a.pair_list = [tuple(int(x) for x in p.split("-")) for p in a.pairs.split(",") if p.strip()]
@@ -89,7 +86,7 @@ def main(argv=None) -> Path:
         common.log(f"{row['pair']}: depth agrees {agree:.2f}, luminance offset {offset}, "
                    f"from the true pose {row['err_mm_none']:.1f} / {row['err_mm_offset']:.1f} mm")
     lines = common.provenance_md("Pairs at the true pose: overlap, exposure, and the estimate started there",
-                                 "experiments/exposure.py", argv,
+                                 __file__, argv,
                                  f"Sequence {path.name}. Level 1 (half resolution); depth agrees: |depth residual| "
                                  "< 3 cm at the ground-truth pose, as a fraction of the reference's valid pixels; "
                                  "offset: median luminance residual over those pixels (0-255); under 30: their "

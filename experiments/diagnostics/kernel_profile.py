@@ -29,8 +29,8 @@ table is per stage, not per level.
 
 Example::
 
-    python experiments/kernel_profile.py                        # fr2_desk and Bonn crowd pairs
-    python experiments/kernel_profile.py --quick --out /tmp/p.md # a synthetic sequence, for CI
+    python -m experiments.diagnostics.kernel_profile                        # fr2_desk and Bonn crowd pairs
+    python -m experiments.diagnostics.kernel_profile --quick --out /tmp/p.md # a synthetic sequence, for CI
 """
 from __future__ import annotations
 
@@ -40,21 +40,18 @@ import gzip
 import json
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+from experiments import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.estimator.motion import _estimate, _estimate_args  # noqa: E402
 from jaxvo.estimator.solvers import COMPILER_OPTIONS  # noqa: E402
-from speed import DYNAMIC, STATIC, load_pairs  # noqa: E402
+from experiments.speed import DYNAMIC, STATIC, load_pairs
 
 SCRIPT = Path(__file__)
 
@@ -83,7 +80,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--config", default=None, help="JSON object of Config fields changed from the default")
     ap.add_argument("--top", type=int, default=15, help="kernels listed per set (default %(default)s)")
     ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, 3 pairs (smoke test)")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "kernel_profile.md", help="markdown output")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "kernel_profile" / "kernel_profile.md", help="markdown output")
     return ap.parse_args(argv)
 
 

@@ -17,15 +17,14 @@ elsewhere, everything else unchanged:
 It reports the moving mask as ``experiments/paper_sequences.py`` scores it (pooled over the
 seeds) and the ATE, per sequence and variant.
 
-    python experiments/map_poses.py      # fr2_desk and fr3 long_office + persons, seeds 0-11
+    python -m experiments.diagnostics.map_poses      # fr2_desk and fr3 long_office + persons, seeds 0-11
 
-Writes ``experiments/results/map_poses.md`` and ``.json``; sequences are cached in
+Writes ``experiments/results/map_poses/map_poses.md`` and ``.json``; sequences are cached in
 ``experiments/results/cache/`` (shared with ``paper_sequences.py``).
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-import common  # noqa: E402  (sets sys.path for jaxvo)
+from experiments import common
 
 import jax  # noqa: E402
 
@@ -42,7 +41,7 @@ from jaxvo.tracking import odometry  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.frame import Frame  # noqa: E402
 
-import paper_sequences  # noqa: E402
+from experiments import paper_sequences
 
 VARIANTS = ("chained", "true", "re-estimated", "re-estimated-full")
 
@@ -53,7 +52,7 @@ def parse_args(argv=None):
     paper_sequences.add_job_args(ap, "", "0,1,2,3,4,5,6,7,8,9,10,11")
     ap.set_defaults(augment="tum")
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma list of {', '.join(VARIANTS)}")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "map_poses.md", help="markdown output (json next to it)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "map_poses" / "map_poses.md", help="markdown output (json next to it)")
     a = ap.parse_args(argv)
     paper_sequences.check_job_args(a, ap)
     a.variants = [v.strip() for v in a.variants.split(",") if v.strip()]
@@ -63,35 +62,33 @@ def parse_args(argv=None):
     return a
 
 
-@contextlib.contextmanager
-def view_poses(variant: str, T_world_cam_true: Optional[np.ndarray] = None, frames: Optional[list] = None):
-    """Within the block, ``Odometry._view_pose`` gives ``variant``'s pose (T_view_new, float32).
+def odometry_with(variant: str, T_world_cam_true: Optional[np.ndarray] = None, frames: Optional[list] = None):
+    """A subclass of :class:`Odometry` whose motion test runs at ``variant``'s pose
+    (``_view_pose``: T_view_new, float32).
 
     T_world_cam_true: (N, 4, 4) ground-truth camera-to-world poses of the frames ("true").
     frames: the sequence's frames ("re-estimated-full")."""
-    chained = odometry.Odometry._view_pose
+    if variant == "chained":
+        return odometry.Odometry
 
-    def true(self, view, new, T_world_new):
-        return (geometry.inverse(T_world_cam_true[view]) @ T_world_cam_true[new]).astype(np.float32)
+    class ViewPoseOdometry(odometry.Odometry):
+        def _view_pose(self, view, new, T_world_new):
+            if variant == "true":
+                return (geometry.inverse(T_world_cam_true[view]) @ T_world_cam_true[new]).astype(np.float32)
+            T0 = super()._view_pose(view, new, T_world_new)
+            if variant == "re-estimated-full":
+                ref, other, camera = frames[new], frames[view], self.camera
+            else:
+                (ref_int, ref_depth), (view_int, view_depth) = self._cues[new], self._cues[view]
+                ref = Frame(np.asarray(ref_int), np.asarray(ref_depth))
+                other = Frame(np.asarray(view_int), np.asarray(view_depth))
+                camera = self._cue_cam
+            # a key of its own, apart from every frame's estimate (those fold in j - 1 < 10**6)
+            est = odometry.estimate_motion(ref, other, camera, Config(), jax.random.fold_in(self.key, 10 ** 6 + new),
+                                           init=T0)
+            return np.asarray(est.T_cur_ref, np.float32) if bool(est.valid) else T0
 
-    def re_estimated(self, view, new, T_world_new, full=False):
-        T0 = chained(self, view, new, T_world_new)
-        if full:
-            ref, other, camera = frames[new], frames[view], self.camera
-        else:
-            (ref_int, ref_depth), (view_int, view_depth) = self._cues[new], self._cues[view]
-            ref, other = Frame(np.asarray(ref_int), np.asarray(ref_depth)), Frame(np.asarray(view_int), np.asarray(view_depth))
-            camera = self._cue_cam
-        # a key of its own, apart from every frame's estimate (those fold in j - 1 < 10**6)
-        est = odometry.estimate_motion(ref, other, camera, Config(), jax.random.fold_in(self.key, 10 ** 6 + new), init=T0)
-        return np.asarray(est.T_cur_ref, np.float32) if bool(est.valid) else T0
-
-    odometry.Odometry._view_pose = {"chained": chained, "true": true, "re-estimated": re_estimated,
-                                    "re-estimated-full": lambda *a: re_estimated(*a, full=True)}[variant]
-    try:
-        yield
-    finally:
-        odometry.Odometry._view_pose = chained
+    return ViewPoseOdometry
 
 
 def main(argv: Optional[Sequence[str]] = None) -> dict:
@@ -107,8 +104,8 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                              "the 'true' variant needs a pose for every frame")
         for variant in a.variants:
             common.log(f"{name} (seed {seed}): {variant}")
-            with view_poses(variant, G, frames):
-                r = paper_sequences.run_default(seq, frames, true_masks, jax.random.key(seed))
+            r = paper_sequences.run_default(seq, frames, true_masks, jax.random.key(seed),
+                                            odometry=odometry_with(variant, G, frames))
             m = r["mask"]
             rows.append({"sequence": name, "seed": seed, "variant": variant,
                          "ate": common.evaluate(seq, r["relative"])["ate"],
@@ -122,7 +119,7 @@ def _scores(tp, fp, fn) -> tuple:
 
 
 def write(a, argv, rows: List[dict], total_s: float) -> None:
-    lines = common.provenance_md("Moving masks with other poses for the motion test", "experiments/map_poses.py", argv)
+    lines = common.provenance_md("Moving masks with other poses for the motion test", __file__, argv)
     lines += ["", f"The default odometry (`jaxvo.track`, `TrackConfig()`) with the pose of each new reference's "
               f"motion test against its earlier view (`Odometry._view_pose`) from the chained estimates "
               f"(*chained*, the library's), from the ground truth (*true*), or re-estimated by RANSAC between the "

@@ -18,10 +18,10 @@ why, on sequences with exact moving masks and exact poses, in three parts:
 * **The default odometry's moving mask** (as ``experiments/paper_sequences.py`` scores it,
   :func:`jaxvo.pipelines.mapping.moving_mask`), pooled over the first ``--early`` pairs and over the rest.
 
-    python experiments/mask_limits.py                        # seq2, handheld-fast, fr2_desk + persons, seeds 0-2
-    python experiments/mask_limits.py --augment '' --sequences seq1 --seeds 0
+    python -m experiments.diagnostics.mask_limits                        # seq2, handheld-fast, fr2_desk + persons, seeds 0-2
+    python -m experiments.diagnostics.mask_limits --augment '' --sequences seq1 --seeds 0
 
-Writes ``experiments/results/mask_limits.md`` and ``.json``; sequences are cached in
+Writes ``experiments/results/mask_limits/mask_limits.md`` and ``.json``; sequences are cached in
 ``experiments/results/cache/`` (shared with ``paper_sequences.py``).
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-import common  # noqa: E402  (sets sys.path for jaxvo)
+from experiments import common
 
 import jax  # noqa: E402
 
@@ -49,7 +49,7 @@ from jaxvo.estimator.pyramid import build_pyramid  # noqa: E402
 from jaxvo.estimator.ransac import inliers  # noqa: E402
 from jaxvo.estimator.residuals import reference_points, residuals, sample_bilinear  # noqa: E402
 
-import paper_sequences  # noqa: E402
+from experiments import paper_sequences
 
 BASELINES = (1, 2, 4, 8, 16)
 
@@ -61,7 +61,7 @@ def parse_args(argv=None):
     ap.add_argument("--early", type=int, default=16, help="the first pairs reported apart (default 16)")
     ap.add_argument("--no-odometry", dest="odometry", action="store_false",
                     help="only the free-space part (no tracking run)")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "mask_limits.md", help="markdown output (json next to it)")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "mask_limits" / "mask_limits.md", help="markdown output (json next to it)")
     a = ap.parse_args(argv)
     paper_sequences.check_job_args(a, ap)
     return a
@@ -181,7 +181,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
 def write(a, argv, rows: List[dict], total_s: float) -> None:
     config = Config()
     names = list(dict.fromkeys(r["sequence"] for r in rows))
-    lines = common.provenance_md("How much of the moving area free space can see", "experiments/mask_limits.py", argv)
+    lines = common.provenance_md("How much of the moving area free space can see", __file__, argv)
     lines += ["", f"Sequences with exact moving masks and poses, seeds {', '.join(map(str, a.seed_list))} "
               f"(at most {a.frames} frames each; the synthetic ones with the Kinect-like sensor model, the "
               "augmentation with 2 persons covering ~30 % of the view, as `experiments/paper_sequences.py` makes "

@@ -22,7 +22,7 @@ from typing import List, Optional
 
 import numpy as np
 
-import common  # noqa: F401  (sys.path for jaxvo)
+from experiments import common
 import jax  # noqa: E402
 
 from jaxvo.config import METHODS, Config  # noqa: E402
@@ -41,7 +41,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--pairs", type=int, default=5, help="consecutive pairs per sequence (default 5)")
     ap.add_argument("--repeats", type=int, default=3, help="timed passes per variant (default 3)")
     ap.add_argument("--quick", action="store_true", help="2 pairs per sequence, 1 pass (smoke test)")
-    ap.add_argument("--out", default=str(common.RESULTS / "variants.md"), help="markdown output (json beside it)")
+    ap.add_argument("--out", default=str(common.RESULTS / "variants" / "variants.md"), help="markdown output (json beside it)")
     return ap.parse_args(argv)
 
 
