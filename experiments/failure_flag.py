@@ -16,7 +16,7 @@ by known small and large steps (overlapping, barely overlapping, turned away).
 Reports precision and recall of "invalid" (positive class: should be invalid), per category
 counts, and the statistics the flag is decided on (:class:`jaxvo.estimator.motion.TrustStats`).
 
-    python experiments/failure_flag.py            # writes experiments/results/failure_flag.{md,json}
+    python experiments/failure_flag.py            # writes experiments/results/failure_flag/failure_flag.{md,json}
 """
 from __future__ import annotations
 

@@ -50,7 +50,7 @@ class Config:
     Luminance is in 0-255 units, depth and distances in metres. Pyramid levels count from 0
     (full resolution) upwards. :meth:`paper` gives the seed paper's algorithm as published.
     """
-    #: "classic" (Gauss-Newton on every pixel), "huber" (IRLS) or "ransac" (the paper's method).
+    #: "classic" (least squares on every pixel), "huber" (Huber IRLS) or "ransac" (the paper's method).
     method: Annotated[str, choice(*METHODS), STATIC] = "ransac"
     #: RANSAC success probability and assumed outlier fraction: the hypothesis count k follows
     #: from p, w and n_points (capped by max_hypotheses). docs/decisions/hypothesis-count.md.
