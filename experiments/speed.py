@@ -31,10 +31,7 @@ import functools
 import time
 from pathlib import Path
 
-if __package__:  # imported as experiments.speed (by a script under experiments/diagnostics/)
-    from experiments import common
-else:            # python experiments/speed.py
-    import common
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402

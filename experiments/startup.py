@@ -395,7 +395,7 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
                   "emitting each kernel, one after the other, and compiling it with LLVM, on several threads), in "
                   f"which LLVM took {codegen['llvm_cpu_s']:.2f} CPU s over {codegen['modules']} kernels (XLA "
                   "compiles a kernel once and reuses it for identical fusions). By the estimator stage a kernel "
-                  "belongs to (the named scopes of `experiments/diagnostics/kernel_profile.py`; `other`: loop bookkeeping "
+                  "belongs to (the named scopes of `experiments/kernel_profile.py`; `other`: loop bookkeeping "
                   "and the rest):", "",
                   "| stage | kernels | LLVM cpu s | share |", "| --- | --- | --- | --- |"]
         total = codegen["llvm_cpu_s"]

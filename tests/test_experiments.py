@@ -29,7 +29,7 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
-DIAGNOSTICS = ("exposure", "map_poses", "mask_limits", "kernel_profile", "variants")
+DIAGNOSTICS = ("exposure", "map_poses", "mask_limits", "variants")
 
 
 def _script(name):

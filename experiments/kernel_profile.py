@@ -29,8 +29,8 @@ table is per stage, not per level.
 
 Example::
 
-    python -m experiments.diagnostics.kernel_profile                        # fr2_desk and Bonn crowd pairs
-    python -m experiments.diagnostics.kernel_profile --quick --out /tmp/p.md # a synthetic sequence, for CI
+    python experiments/kernel_profile.py                        # fr2_desk and Bonn crowd pairs
+    python experiments/kernel_profile.py --quick --out /tmp/p.md # a synthetic sequence, for CI
 """
 from __future__ import annotations
 
@@ -44,14 +44,14 @@ import tempfile
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from experiments import common
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.estimator.motion import _estimate, _estimate_args  # noqa: E402
 from jaxvo.estimator.solvers import COMPILER_OPTIONS  # noqa: E402
-from experiments.speed import DYNAMIC, STATIC, load_pairs
+from speed import DYNAMIC, STATIC, load_pairs  # noqa: E402
 
 SCRIPT = Path(__file__)
 
