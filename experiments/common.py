@@ -1,4 +1,4 @@
-"""Shared helpers of the experiment scripts (``table1.py``, ``speed.py``, ``sweep.py``).
+"""Shared helpers of the experiment scripts (``table1.py``, ``speed.py``, ``sweep.py``, ...).
 
 One place for: finding and opening sequences, generating (cached) dynamic
 augmentations of real sequences, running a jaxvo method or a peer over a
@@ -27,14 +27,10 @@ from typing import Callable, Dict, Iterable, List, Optional, Sequence
 
 import numpy as np
 
-# make ``import jaxvo`` and ``import common`` work however a script is started
 _HERE = Path(__file__).resolve().parent
 _REPO = _HERE.parent
-for _p in (str(_REPO), str(_HERE)):
-    if _p not in sys.path:
-        sys.path.insert(0, _p)
 
-import jax  # noqa: E402
+import jax
 
 from jaxvo import data as datasets
 from jaxvo.runtime import machine
@@ -63,13 +59,16 @@ PAPER_FPS = {"classic": 25.0, "huber": 25.0, "ransac-static": 14.0, "ransac-dyna
 # ----------------------------------------------------------------------------- provenance
 
 def command_line(script: str, argv: Optional[Sequence[str]]) -> str:
-    """The command that reproduces a run, e.g. ``python experiments/speed.py --pairs 20``."""
+    """The command that reproduces a run from the repository root, e.g. ``python
+    experiments/speed.py --pairs 20``; a script under ``experiments/diagnostics/`` runs as a
+    module (``python -m experiments.diagnostics.variants``)."""
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         rel = Path(script).resolve().relative_to(_REPO)
     except ValueError:
         rel = Path(script)
-    return " ".join(["python", str(rel)] + [shlex.quote(a) for a in args])
+    run = ["-m", ".".join(rel.with_suffix("").parts)] if rel.parent == Path("experiments", "diagnostics") else [str(rel)]
+    return " ".join(["python"] + run + [shlex.quote(a) for a in args])
 
 
 def machine_info() -> Dict[str, object]:

@@ -16,19 +16,16 @@ by known small and large steps (overlapping, barely overlapping, turned away).
 Reports precision and recall of "invalid" (positive class: should be invalid), per category
 counts, and the statistics the flag is decided on (:class:`jaxvo.estimator.TrustStats`).
 
-    python experiments/failure_flag.py            # writes experiments/results/failure_flag.{md,json}
+    python experiments/failure_flag.py            # writes experiments/results/failure_flag/failure_flag.{md,json}
 """
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
+import common
 
 import jax  # noqa: E402
 
@@ -170,7 +167,7 @@ def main(argv=None):
     ap.add_argument("--max-pairs-per-seq", type=int, default=40)
     ap.add_argument("--no-synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="a tiny run: 2 real pairs per sequence, 'tune' split only")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "failure_flag.md")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "failure_flag" / "failure_flag.md")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()

@@ -23,12 +23,9 @@ Example::
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -52,7 +49,7 @@ def parse_args(argv=None):
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames")
     ap.add_argument("--every", type=int, default=5, help="map: every N-th frame")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", default=str(Path(__file__).resolve().parent / "results" / "figures"))
+    ap.add_argument("--out-dir", default=str(common.RESULTS / "figures"))
     ap.add_argument("--ply", default=None, help="also write the map as this PLY file")
     return ap.parse_args(argv)
 

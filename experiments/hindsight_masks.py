@@ -19,7 +19,7 @@ mean and range over the seeds, and the pooled counts of all seeds.
     python experiments/hindsight_masks.py                                   # the results file
     python experiments/hindsight_masks.py --sequences seq2 --augment '' --seeds 0 --frames 30
 
-Writes ``experiments/results/hindsight_masks.md`` and ``.json``; sequences are cached in
+Writes ``experiments/results/hindsight_masks/hindsight_masks.md`` and ``.json``; sequences are cached in
 ``experiments/results/cache/`` (shared with ``paper_sequences.py``).
 """
 from __future__ import annotations
@@ -32,7 +32,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-import common  # noqa: E402  (sets sys.path for jaxvo)
+import common
 
 import jax  # noqa: E402
 
@@ -56,7 +56,7 @@ def parse_args(argv=None):
                     help="HindsightParams.depth_slope")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: seq1 only, 8 frames, seed 0, no augmentation")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks.md",
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "hindsight_masks" / "hindsight_masks.md",
                     help="markdown output (json next to it)")
     a = ap.parse_args(argv)
     if a.quick:
@@ -123,7 +123,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                    f"(true poses {scores(row['true'])}), {row['estimated_s']:.1f} s")
         rows.append(row)
 
-    lines = common.provenance_md("Moving-pixel masks in hindsight", "experiments/hindsight_masks.py", argv_list)
+    lines = common.provenance_md("Moving-pixel masks in hindsight", __file__, argv_list)
     lines += [f"Offsets {', '.join(str(o) for o in OFFSETS)} frames; ratio {params.ratio}, region_ratio "
               f"{params.region_ratio}, depth_slope {params.depth_slope} (`jaxvo.tracking.hindsight.HindsightParams`). {a.frames} frames at most per "
               f"sequence; " + "; ".join(([f"the augmentation's seeds {a.seeds}"] if a.augment else [])
@@ -160,7 +160,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     for r in rows:
         cells = [" / ".join(common.fmt(x, ".3f") for x in scores(r[w])) for w in ("online", "estimated", "true")]
         lines.append(f"| {r['sequence']} | {r['seed']} | {common.fmt(r['ate'], '.4f')} | " + " | ".join(cells) + " |")
-    data = {"command": common.command_line("experiments/hindsight_masks.py", argv_list),
+    data = {"command": common.command_line(__file__, argv_list),
             "machine": common.machine_info(), "params": params._asdict(), "offsets": list(OFFSETS),
             "rows": rows, "table": table}
     out = common.write_outputs(a.out, lines, data)

@@ -40,14 +40,11 @@ import gzip
 import json
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -83,7 +80,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--config", default=None, help="JSON object of Config fields changed from the default")
     ap.add_argument("--top", type=int, default=15, help="kernels listed per set (default %(default)s)")
     ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, 3 pairs (smoke test)")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "kernel_profile.md", help="markdown output")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "kernel_profile" / "kernel_profile.md", help="markdown output")
     return ap.parse_args(argv)
 
 

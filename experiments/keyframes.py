@@ -24,13 +24,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -56,7 +53,7 @@ def parse_args(argv=None):
                     help="JSON object of jaxvo.TrackConfig fields changed in the 'default' policy "
                          "(e.g. '{\"fuse\": false, \"smooth\": false}')")
     ap.add_argument("--seeds", default="0", help="comma-separated PRNG key seeds for ransac (default 0)")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "keyframes.md"),
+    ap.add_argument("--out", default=str(common.RESULTS / "keyframes" / "keyframes.md"),
                     help="markdown output (JSON next to it)")
     return ap.parse_args(argv)
 
@@ -138,7 +135,7 @@ def main(argv=None) -> Path:
     for r in rows:
         r["rpef_t_mm"] = None if r.get("rpef_t") is None else 1000 * r["rpef_t"]
     lines = common.provenance_md(
-        "Frame to frame vs keyframes", "experiments/keyframes.py", argv,
+        "Frame to frame vs keyframes", __file__, argv,
         "RPE 1 s: translational (m/s) and rotational (deg/s) RMSE with a fixed 1 s delta; RPE 1 f: "
         "per frame (mm); ATE: RMSE after SE(3) alignment (m); failures: frames whose estimate failed "
         "and held the previous pose; ms/frame includes compilation on each method's first call.")

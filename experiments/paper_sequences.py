@@ -18,8 +18,8 @@ RANSAC's inlier/outlier overlay on the most dynamic frame (Fig. 4/7).
     python experiments/paper_sequences.py --frames 300 --sequences seq1,seq2
     python experiments/paper_sequences.py --augment tum   # plus the real TUM sequences, augmented
 
-Writes ``experiments/results/paper_sequences.md`` and ``.json`` and the figures into
-``experiments/results/paper_sequences/``; sequences are cached in ``experiments/results/cache/``.
+Writes ``experiments/results/paper_sequences/paper_sequences.md`` and ``.json`` and the figures into
+``experiments/results/paper_sequences/paper_sequences/``; sequences are cached in ``experiments/results/cache/``.
 """
 from __future__ import annotations
 
@@ -31,7 +31,10 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-import common  # noqa: E402  (sets sys.path for jaxvo)
+if __package__:  # imported as experiments.paper_sequences (by a script under experiments/diagnostics/)
+    from experiments import common
+else:            # python experiments/paper_sequences.py
+    import common
 
 import jax  # noqa: E402
 
@@ -89,7 +92,7 @@ def parse_args(argv=None):
                     help="JSON object of jaxvo.Config fields applied to every method, the default included "
                          "(e.g. '{\"ransac_finest\": 2}')")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences.md",
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences" / "paper_sequences.md",
                     help="markdown output (json next to it, figures in <stem>/)")
     a = ap.parse_args(argv)
     if a.quick:
@@ -250,12 +253,13 @@ def true_masks(folder, seq: TumSequence) -> list:
 
 
 def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
-                config: Optional[dict] = None) -> dict:
+                config: Optional[dict] = None, odometry=None) -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
     Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask,
-    and ``valid``: (pairs,) bool, False where the estimate of frame i+1 failed and its pose was held."""
+    and ``valid``: (pairs,) bool, False where the estimate of frame i+1 failed and its pose was held.
+    ``odometry``: a subclass of :class:`jaxvo.Odometry` to run instead (``jaxvo.track``'s loop)."""
     cam = seq.camera
     per_step = []
     cover = np.array([m.mean() for m in true_masks])
@@ -274,7 +278,16 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
         last[0] = now
 
     t0 = time.perf_counter()
-    tr = track(frames, cam, Config.from_json(config or {}), key, policy=TrackConfig() if policy is None else policy, callback=on_step)
+    if odometry is None:
+        tr = track(frames, cam, Config.from_json(config or {}), key, policy=TrackConfig() if policy is None else policy,
+                   callback=on_step)
+    else:
+        odo = odometry(cam, Config.from_json(config or {}), key, TrackConfig() if policy is None else policy)
+        for frame in frames:
+            step = odo.add(frame)
+            if step.frame > 0:
+                on_step(step)
+        tr = odo.result()
     steps = np.asarray(per_step, np.int64).reshape(-1, 6)
     tp, fp, fn, tn = (int(c) for c in steps[:, 2:].sum(0))
     return {"relative": tr.relative, "valid": tr.valid, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else

@@ -28,13 +28,10 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -78,7 +75,7 @@ def parse_args(argv=None):
     ap.add_argument("--quick", action="store_true",
                     help="tiny CI run: 2 pairs, 1 repeat, first method only, coarsest level only, "
                          "batch 2, track 3 vs 6 frames, OpenCV rgb peer only")
-    ap.add_argument("--out", default=str(common.RESULTS / "speed.md"), help="markdown output (json beside it)")
+    ap.add_argument("--out", default=str(common.RESULTS / "speed" / "speed.md"), help="markdown output (json beside it)")
     args = ap.parse_args(argv)
     args.methods = [m for m in args.methods.split(",") if m]
     for m in args.methods:

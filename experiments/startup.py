@@ -47,7 +47,7 @@ from typing import List, Optional
 
 import numpy as np
 
-import common  # noqa: F401  (sys.path for jaxvo)
+import common
 
 from jaxvo.runtime import cache  # noqa: E402
 
@@ -66,7 +66,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
                     help="passes of the fresh-process runs; the table gives their median and range (default: %(default)s)")
     ap.add_argument("--no-stages", action="store_true", help="skip the trace / lower / compile breakdown")
     ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, classic only (smoke test)")
-    ap.add_argument("--out", type=Path, default=common.RESULTS / "startup.md", help="markdown output")
+    ap.add_argument("--out", type=Path, default=common.RESULTS / "startup" / "startup.md", help="markdown output")
     ap.add_argument("--codegen-child", nargs=2, metavar=("SEQ", "HLO_OUT"), help=argparse.SUPPRESS)
     return ap.parse_args(argv)
 

@@ -22,13 +22,10 @@ Example::
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -62,7 +59,7 @@ def parse_args(argv=None):
     ap.add_argument("--no-separate", action="store_true", help="skip the separate-calls timing")
     ap.add_argument("--cache", default=None, help=f"augmentation cache folder (default {common.CACHE})")
     ap.add_argument("--quick", action="store_true", help="tiny CI run: 3 frames, 2x2 grid, 2 values of w")
-    ap.add_argument("--out", default=str(common.RESULTS / "sweep.md"), help="markdown output (json, png beside it)")
+    ap.add_argument("--out", default=str(common.RESULTS / "sweep" / "sweep.md"), help="markdown output (json, png beside it)")
     args = ap.parse_args(argv)
     if args.quick:
         args.max_frames = args.max_frames or 3

@@ -22,13 +22,10 @@ Example::
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import common  # noqa: E402
+import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
@@ -54,7 +51,7 @@ def parse_args(argv=None):
     ap.add_argument("--quick", action="store_true",
                     help="tiny run for CI: 3 frames, first sequence only, methods classic,opencv-rgb "
                          "unless --methods is given")
-    ap.add_argument("--out", default=str(common.RESULTS / "table1.md"), help="markdown output (json beside it)")
+    ap.add_argument("--out", default=str(common.RESULTS / "table1" / "table1.md"), help="markdown output (json beside it)")
     args = ap.parse_args(argv)
     if args.quick:
         args.max_frames = args.max_frames or 3

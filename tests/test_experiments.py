@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxvo.data.layouts import data_root
+from jaxvo.data.sequences import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 EXP = REPO / "experiments"
@@ -29,10 +29,16 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
+DIAGNOSTICS = ("exposure", "map_poses", "mask_limits", "variants")
+
+
 def _script(name):
-    if str(EXP) not in sys.path:
-        sys.path.insert(0, str(EXP))
-    return importlib.import_module(name)
+    """The script as a module: ``experiments/<name>.py`` as its command line imports it (its folder
+    first on the path), a diagnostic as ``experiments.diagnostics.<name>`` from the repository root."""
+    for folder in (EXP, REPO):
+        if str(folder) not in sys.path:
+            sys.path.insert(0, str(folder))
+    return importlib.import_module(f"experiments.diagnostics.{name}" if name in DIAGNOSTICS else name)
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +49,8 @@ def cache(tmp_path_factory):
 @pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile",
                                   "hindsight_masks"])
 def test_help(name):
-    r = subprocess.run([sys.executable, str(EXP / f"{name}.py"), "--help"], capture_output=True, text=True,
-                       timeout=120)
+    command = ["-m", f"experiments.diagnostics.{name}"] if name in DIAGNOSTICS else [str(EXP / f"{name}.py")]
+    r = subprocess.run([sys.executable, *command, "--help"], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert r.returncode == 0, r.stderr
     assert "usage:" in r.stdout and "--quick" in r.stdout
 
@@ -200,13 +206,13 @@ def test_mask_limits_free_space_and_mask_by_stage(tmp_path):
     early, late = np.array(row["early_counts"]), np.array(row["late_counts"])
     assert early.shape == late.shape == (4,) and early.sum() > 0 and late.sum() > 0
     text = out.read_text()
-    assert "python experiments/mask_limits.py" in text and "| seq1 |" in text and "| precision 1-2 |" in text
+    assert "python -m experiments.diagnostics.mask_limits" in text and "| seq1 |" in text and "| precision 1-2 |" in text
 
 
 def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
     """map_poses: the odometry asks ``Odometry.view_pose`` for each motion test's pose, the
-    "true" variant answers with the ground truth's relative pose and the method is restored
-    after the block; the "chained" variant is the library's run itself (the same mask counts as
+    "true" variant's subclass answers with the ground truth's relative pose and the library's class
+    is left as it is; the "chained" variant is the library's run itself (the same mask counts as
     paper_sequences.run_default); the table has a row per variant."""
     import jax
     from jaxvo import geometry
@@ -217,17 +223,15 @@ def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
     ok, G = seq.groundtruth_at_frames()
     asked = []
     original = odometry.Odometry.view_pose
-    with mp.view_poses("true", G):
-        answer = odometry.Odometry.view_pose
 
-        def spy(self, view, new, T_world_new):
-            T = answer(self, view, new, T_world_new)
+    class Spy(mp.odometry_with("true", G)):
+        def view_pose(self, view, new, T_world_new):
+            T = super().view_pose(view, new, T_world_new)
             asked.append((view, new, T))
             return T
-        odometry.Odometry.view_pose = spy
-        ps.run_default(seq, frames, true_masks, jax.random.key(0))
-        odometry.Odometry.view_pose = answer
+    ps.run_default(seq, frames, true_masks, jax.random.key(0), odometry=Spy)
     assert odometry.Odometry.view_pose is original
+    assert mp.odometry_with("chained") is odometry.Odometry
     assert asked, "no motion test asked for its pose"
     for view, new, T in asked:
         assert view < new and T.dtype == np.float32
@@ -240,7 +244,7 @@ def test_map_poses_swaps_only_the_motion_tests_pose(tmp_path):
     plain = ps.run_default(seq, frames, true_masks, jax.random.key(0))["mask"]
     assert rows[0]["counts"] == [plain["tp"], plain["fp"], plain["fn"]]
     text = out.read_text()
-    assert "python experiments/map_poses.py" in text and "| seq2 | true |" in text
+    assert "python -m experiments.diagnostics.map_poses" in text and "| seq2 | true |" in text
 
 
 def test_hindsight_masks_quick(tmp_path):
@@ -365,7 +369,7 @@ def test_figures_small(tmp_path):
     hs = cv2.imread(str(out / "bonn_hindsight.png"))
     assert hs is not None and hs.shape == seg.shape
     assert cv2.imread(str(out / "bonn_map.png")) is not None
-    from jaxvo.data.ply import read_ply
+    from jaxvo.pipelines.mapping import read_ply
     pts, cols = read_ply(tmp_path / "map.ply")
     assert len(pts) > 1000 and cols.shape == (len(pts), 3)
 

@@ -352,7 +352,7 @@ class Odometry:
 
         A seam: a subclass (or an assignment to ``Odometry.view_pose``) may return another pose
         there, e.g. the ground truth or one estimated between the two frames, to measure what the
-        masks reach with it (``experiments/map_poses.py``); the map reads the frames' motion-test
+        masks reach with it (``experiments/diagnostics/map_poses.py``); the map reads the frames' motion-test
         images from ``self.static_map.cues`` at ``self.static_map.cue_camera``."""
         return (geometry.inverse(self._chain_pose(view)) @ T_world_new).astype(np.float32)
 
