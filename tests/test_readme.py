@@ -62,10 +62,9 @@ def test_readme_first_screen_and_results_document():
     for needle in ("pip install -e .", "jaxvo demo", "python -m pytest -q"):
         assert needle in first_screen, needle
     first = text.split("## The library in ten lines", 1)[0]
-    for needle in ("jaxvo run ../shared/data", "jaxvo eval", "cvg.cit.tum.de", "ipb.uni-bonn.de",
-                   "docs/results.md", "docs/decisions/"):
-        assert needle in first + text, needle
-    assert "jaxvo run ../shared/data" in first and "docs/results.md" in first
+    for needle in ("jaxvo run ../shared/data", "jaxvo eval", "cvg.cit.tum.de", "ipb.uni-bonn.de", "docs/results.md"):
+        assert needle in first, needle
+    assert "docs/decisions/" in text
     results = ROOT / "docs" / "results.md"
     assert results.is_file() and "python experiments/keyframes.py" in results.read_text()
     assert "| rgbd_bonn_crowd | frame to frame |" not in text      # a result row stays out of the README
@@ -85,9 +84,42 @@ def test_readme_has_no_history():
     assert not re.search(r"\bcommit [0-9a-f]{7,40}\b|\bat [0-9a-f]{7}\b", text)
 
 
+def _help(*command: str) -> str:
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "jaxvo", *command, "--help"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout
+
+
+def test_readme_commands_exist():
+    """Every `jaxvo <command>` the README names is a command, and the options on its command lines
+    (the shell blocks and the command table) are options of that command."""
+    text = README.read_text()
+    commands = set(re.findall(r"^  (\w+)  ", _help().split("Commands:", 1)[1], re.M))
+    shell = "\n".join(re.findall(r"```bash\n(.*?)```", text, re.S))
+    named = set(re.findall(r"`jaxvo (\w+)", text)) | set(re.findall(r"^jaxvo (\w+)", shell, re.M))
+    assert named <= commands, named - commands
+    table = re.search(r"\| command \| what it does \|\n(.*?)\n\n", text, re.S).group(1)
+    assert {re.match(r"\| `jaxvo (\w+)", row).group(1) for row in table.splitlines()[1:]} == commands
+    lines = [ln for ln in (shell + "\n" + table).splitlines() if re.search(r"\bjaxvo \w+", ln)]
+    wanted: dict[str, set] = {}
+    for ln in lines:
+        cmd = re.search(r"\bjaxvo (\w+)", ln).group(1)
+        wanted.setdefault(cmd, set()).update(re.findall(r"(?<![\w-])(--?[a-z][a-z-]*)", ln.split("#")[0]))
+    for cmd, options in wanted.items():
+        help_text = _help(cmd)
+        for opt in options:
+            assert re.search(rf"(?<![\w-]){re.escape(opt)}(?![\w-])", help_text), (cmd, opt)
+
+
 def test_results_links_resolve():
     """Every experiments/results/<script>/<file> that the README or docs/results.md links exists, and
     <script> is an experiments script (one folder of results per script)."""
+    for doc in (README, ROOT / "docs" / "results.md"):
+        for script in re.findall(r"python (experiments/[\w/]+\.py)", doc.read_text()):
+            assert (ROOT / script).is_file(), (doc.name, script)
     if not (ROOT / "experiments" / "results" / "keyframes").is_dir():
         pytest.skip("experiments/results/ is not yet one folder per script")
     for doc in (README, ROOT / "docs" / "results.md"):
