@@ -100,8 +100,8 @@ def parse_args(argv=None):
     ap.add_argument("--reserve", type=float, default=100.0,
                     help="seconds before --time-limit at which the timings start even if some compilations "
                          "have not finished (default 100)")
-    ap.add_argument("--compile-workers", type=int, default=max(1, min(6, (os.cpu_count() or 2) // 2)),
-                    help="compilations at once (default half the host CPUs, 1 to 6)")
+    ap.add_argument("--compile-workers", type=int, default=max(2, min(6, (os.cpu_count() or 2) // 2)),
+                    help="compilations at once (default half the host CPUs, 2 to 6)")
     ap.add_argument("--quick", action="store_true",
                     help="tiny run for a CPU: 2 pairs per set, 1 repeat, batches 1,2, 2 sequences of 3 frames")
     a = ap.parse_args(argv)
