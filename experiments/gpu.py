@@ -597,6 +597,17 @@ def _mib(x):
     return "-" if x is None else f"{x / 2 ** 20:.0f}"
 
 
+def _lines(rows) -> List[str]:
+    """Markdown table lines of ``rows`` (each an iterable of cells), then a blank line."""
+    return ["| " + " | ".join(str(c) for c in cells) + " |" for cells in rows] + [""]
+
+
+def _set_lines(rows: List[Dict], cells) -> List[str]:
+    """Table lines, one per method and set of ``rows`` (each {"method", "sets": {name: dict}}):
+    method, set name, then ``cells(set dict)``."""
+    return _lines([r["method"], name] + cells(s) for r in rows for name, s in r["sets"].items())
+
+
 def markdown(d: Dict) -> str:
     L = ["# jaxvo on one accelerator", ""]
     dev = d.get("device")
@@ -615,8 +626,7 @@ def markdown(d: Dict) -> str:
               f"First calls, warm-up passes and batched programs ran before any timing, {c['workers']} at once "
               f"(so each one's wall time counts the others beside it); all done after {c['wall_s']:.0f} s.", "",
               "| task | state | wall s | error |", "|---|---|---:|---|"]
-        L += [f"| {t['task']} | {t['state']} | {_f(t['wall_s'])} | {t['error'] or ''} |" for t in c["tasks"]]
-        L.append("")
+        L += _lines((t["task"], t["state"], _f(t["wall_s"]), t["error"] or "") for t in c["tasks"])
     if d.get("pairs"):
         L += ["## Per pair: `jaxvo.estimate_motion`, 640x480", "",
               "Each call blocked until ready and its pose pulled to the host. First call: trace + "
@@ -624,12 +634,9 @@ def markdown(d: Dict) -> str:
               "Hypotheses: RANSAC hypotheses evaluated per pair, summed over the levels.", "",
               "| method | set | pairs | median ms | mean ms | p90 ms | FPS | first call s | compile s | hypotheses |",
               "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-        for r in d["pairs"]:
-            for name, s in r["sets"].items():
-                L.append(f"| {r['method']} | {name} | {s['pairs']} | {_f(s['median_ms'])} | {_f(s['mean_ms'])} | "
-                         f"{_f(s['p90_ms'])} | {_f(s['fps'])} | {_f(s['first_call_s'])} | {_f(s['compile_s'])} | "
-                         f"{_f(s['hypotheses_mean'])} |")
-        L.append("")
+        L += _set_lines(d["pairs"], lambda s: [s["pairs"], _f(s["median_ms"]), _f(s["mean_ms"]), _f(s["p90_ms"]),
+                                               _f(s["fps"]), _f(s["first_call_s"]), _f(s["compile_s"]),
+                                               _f(s["hypotheses_mean"])])
     if d.get("cpu"):
         same = any(r.get("same_device") for r in d["cpu"])
         L += ["## Default device against the CPU (same pairs, same keys, one process)", "",
@@ -638,20 +645,15 @@ def markdown(d: Dict) -> str:
               "angle of R_a^T R_b.", "",
               "| method | set | CPU median ms | CPU first call s | max translation diff m | max rotation diff deg "
               "| median translation diff m | non-finite |", "|---|---|---:|---:|---:|---:|---:|---:|"]
-        for r in d["cpu"]:
-            for name, s in r["sets"].items():
-                L.append(f"| {r['method']} | {name} | {_f(s['median_ms'])} | {_f(s['first_call_s'])} | "
-                         f"{s['max_translation_m']:.2e} | {s['max_rotation_deg']:.2e} | "
-                         f"{s['median_translation_m']:.2e} | {s['nonfinite']} |")
-        L.append("")
+        L += _set_lines(d["cpu"], lambda s: [_f(s["median_ms"]), _f(s["first_call_s"]), f"{s['max_translation_m']:.2e}",
+                                             f"{s['max_rotation_deg']:.2e}", f"{s['median_translation_m']:.2e}",
+                                             s["nonfinite"]])
     if d.get("track"):
         L += ["## Default tracking: `Odometry(camera, Config(), key, TrackConfig()).add` per frame", "",
               "| set | frames | median ms | mean ms | p90 ms | FPS | compile pass s | first two frames s | failed |",
               "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-        for r in d["track"]:
-            L.append(f"| {r['set']} | {r['frames']} | {_f(r['median_ms'])} | {_f(r['mean_ms'])} | {_f(r['p90_ms'])} | "
-                     f"{_f(r['fps'])} | {_f(r['warmup_pass_s'])} | {_f(r['warmup_first_two_s'])} | {r['failed']} |")
-        L.append("")
+        L += _lines((r["set"], r["frames"], _f(r["median_ms"]), _f(r["mean_ms"]), _f(r["p90_ms"]), _f(r["fps"]),
+                     _f(r["warmup_pass_s"]), _f(r["warmup_first_two_s"]), r["failed"]) for r in d["track"])
     if d.get("batch"):
         L += ["## RANSAC batches: `jit(vmap(estimate_motion))` over B pairs, 640x480", "",
               "compute: inputs already on the device; with transfer: the B pairs' images sent from the host "
@@ -691,10 +693,8 @@ def markdown(d: Dict) -> str:
               f"CPU: `{d['track_cpu'][0]['device']}`" + (" (the default device itself)" if same else "") + ".", "",
               "| set | CPU median ms | max translation diff m | max rotation diff deg | non-finite |",
               "|---|---:|---:|---:|---:|"]
-        for r in d["track_cpu"]:
-            L.append(f"| {r['set']} | {_f(r['median_ms'])} | {r['max_translation_m']:.2e} | "
-                     f"{r['max_rotation_deg']:.2e} | {r['nonfinite']} |")
-        L.append("")
+        L += _lines((r["set"], _f(r["median_ms"]), f"{r['max_translation_m']:.2e}", f"{r['max_rotation_deg']:.2e}",
+                     r["nonfinite"]) for r in d["track_cpu"])
     if d.get("skipped"):
         L += ["## Skipped", ""] + [f"- {s}" for s in d["skipped"]] + [""]
     if d.get("errors"):
