@@ -61,7 +61,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import jaxvo
 from jaxvo.config import Config, TrackConfig
-from jaxvo.data.sequences import TumSequence, data_root
+from jaxvo.data import TumSequence, data_root
 from jaxvo.frame import Frame
 from jaxvo.pipelines.run import run_sequences
 from jaxvo.tracking import batch as _batch
