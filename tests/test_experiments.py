@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxvo.data.sequences import data_root
+from jaxvo.data import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 EXP = REPO / "experiments"
