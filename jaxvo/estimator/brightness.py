@@ -4,7 +4,7 @@ Kinect-class cameras set their exposure automatically. When a person in a light
 pullover fills half of the picture the exposure changes, and the static wall behind
 comes out 30-40 grey levels brighter or darker a few frames later (Bonn crowd, frames
 109 -> 120: over the pixels whose depth agrees at the true pose, the median luminance
-residual is +36; ``python experiments/exposure.py``). Most pixels then fail the paper's
+residual is +36; ``python -m experiments.diagnostics.exposure``). Most pixels then fail the paper's
 |luminance residual| < 30 test at the true pose.
 
 Depth does not depend on exposure, so the pixels whose depth agrees at the pose the

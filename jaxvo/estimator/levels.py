@@ -65,7 +65,7 @@ def _level_groups(config: Config, L: int, width: int, height: int):
     one's points works through all of them. Default tiles: levels 3-1 (4800 points each, no
     padding). The paper's every pixel: levels 3-2 (4800 and 19200 points, 3.5 % padding; XLA
     compiled its estimator in 7.0 instead of 9.4 s, at 1.04x / 1.03x the time per static / Bonn
-    pair: experiments/results/scan_levels_paper.md; levels 3-1 as one group took 1.5x the time
+    pair: docs/decisions/scan-levels.md; levels 3-1 as one group took 1.5x the time
     per pair in a scratch run). Each level without RANSAC is a group of its own: those compile in about a
     second each (classic with its four levels as one group took up to 1.37x the time per pair,
     for 1 s less compilation: see ``Config.scan_levels``)."""

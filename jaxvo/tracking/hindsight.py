@@ -3,7 +3,7 @@
 Online (:mod:`jaxvo.tracking.segmentation`) a frame can only be compared with frames before it,
 and between frames a fraction of a second apart a person who walks slowly, or moves
 with the camera, stays on most of the pixels it covered: the evidence that it moves
-grows only as it leaves them (``experiments/mask_limits.py``). Once a whole sequence has
+grows only as it leaves them (``python -m experiments.diagnostics.mask_limits``). Once a whole sequence has
 been tracked every pose is known, so each frame can be compared with frames *before and
 after* it, up to ~1.6 s away, where the person has long moved on.
 
@@ -68,7 +68,7 @@ class HindsightParams(NamedTuple):
     (0.79 / 0.75 with depth_slope 0). depth_slope 0 flagged whole stretches of Bonn crowd's wall
     3-3.5 m away (its depth residuals 3-8 cm in the views 16-48 frames away); 0.005 and 0.01
     clear them, at 0.80 / 0.74 and 0.80 / 0.72 on the augmentation, whose scene is 1-2.5 m away.
-    Numbers with these values: ``experiments/results/hindsight_masks.md``.
+    Numbers with these values: ``experiments/results/hindsight_masks/hindsight_masks.md``.
     """
     ratio: float = 0.25
     region_ratio: float = 0.5

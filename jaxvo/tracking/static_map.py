@@ -202,7 +202,18 @@ class StaticMap:
     depths: frame index -> map-level depth, for the votes; cues: frame index -> motion-test
     (intensity, depth). tested: frames between the reference and its motion test's view.
     compiling: the thread compiling the programs ahead (:func:`_compile_map_programs`).
+
+    The three map programs are class attributes, the seam where a subclass wraps them (e.g.
+    ``experiments/speed.py`` times them) without changing what they compute; assign an instance
+    of the subclass to ``Odometry.static_map`` before the first frame.
     """
+
+    #: the vote of one valid estimate (:func:`_update_map`)
+    update_program = staticmethod(_update_map)
+    #: the map of a new reference: carried over, voted, motion-tested (:func:`_new_reference_map`)
+    new_reference_program = staticmethod(_new_reference_map)
+    #: the later motion test of a reference tested against no earlier view (:func:`_later_motion_test`)
+    later_motion_test_program = staticmethod(_later_motion_test)
 
     def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams):
         self.params = params
@@ -252,12 +263,12 @@ class StaticMap:
         # and everything computed from it, the estimate's weights included, so the map's
         # programs and the estimator would each compile a second time
         unexplained = np.asarray(_unexplained(est.inlier_mask, est.valid_mask, occluded, self.L.shape))
-        self.L = _update_map(self.L, self.depths[ref], self.depths[j], as_float32(T), unexplained,
-                             self.camera, self.params)
+        self.L = self.update_program(self.L, self.depths[ref], self.depths[j], as_float32(T), unexplained,
+                                     self.camera, self.params)
         if self.tested < _CUE_AHEAD <= j - ref and self.cue_camera.width >= _CUE_MIN_WIDTH:
-            self.L, self.flags = _later_motion_test(self.L, self.flags, self.depths[ref], self.cues[ref],
-                                                    self.cues[j], as_float32(T), self.camera, self.params,
-                                                    self.cue_camera)
+            self.L, self.flags = self.later_motion_test_program(
+                self.L, self.flags, self.depths[ref], self.cues[ref], self.cues[j], as_float32(T), self.camera,
+                self.params, self.cue_camera)
             self.tested = j - ref
 
     def new_reference(self, old: int, new: int, j: int, history: int, pose: Callable[[int], np.ndarray],
@@ -295,9 +306,9 @@ class StaticMap:
         cue = self.cues[min(back)] if back else self.cues[new]
         T_cue = view_pose(min(back), new, T_world_new) if back else np.eye(4, dtype=np.float32)
         self.tested = new - min(back) if back else 0
-        self.L, self.flags = _new_reference_map(self.L, self.depths[old], self.depths[new], T_old_new, mds, Ts, ok,
-                                                self.camera, self.params, self.cues[new], cue, T_cue,
-                                                np.bool_(bool(back)), self.cue_camera)
+        self.L, self.flags = self.new_reference_program(self.L, self.depths[old], self.depths[new], T_old_new, mds,
+                                                        Ts, ok, self.camera, self.params, self.cues[new], cue, T_cue,
+                                                        np.bool_(bool(back)), self.cue_camera)
 
     def forget(self, before: int) -> None:
         """Drop the depths and motion-test images of the frames before ``before``."""

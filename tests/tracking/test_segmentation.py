@@ -442,7 +442,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
             later.append(1)
             return self.fn(*args)
 
-    monkeypatch.setattr(M, "_later_motion_test", Spy(M._later_motion_test))
+    monkeypatch.setattr(M.StaticMap, "later_motion_test_program", staticmethod(Spy(M._later_motion_test)))
     cam = Camera(150.0, 150.0, 95.5, 71.5, 192, 144)   # an image size no other test compiles for
     s = make_sequence("seq3", frames=8, seed=1, camera=cam)
     frames = [s.render(k).frame() for k in range(len(s))]
