@@ -215,8 +215,8 @@ def transform_points(T_a_b, P_b):
     """Apply (..., 4, 4) T_a_b to (..., N, 3) points in frame b -> points in frame a.
 
     Written as three multiply-adds rather than a (N, 3) x (3, 3) matrix product: XLA on CPU
-    runs the product as a general matrix multiply, ~10x slower for this shape (0.3 vs 6 ms
-    for 640x480 points), and the warp of every residual evaluation is this product.
+    runs the product as a general matrix multiply, an order of magnitude slower for this shape
+    (docs/decisions/cpu-kernels.md), and the warp of every residual evaluation is this product.
     """
     R, t = T_a_b[..., None, :3, :3], T_a_b[..., None, :3, 3]
     return P_b[..., 0:1] * R[..., 0] + P_b[..., 1:2] * R[..., 1] + P_b[..., 2:3] * R[..., 2] + t

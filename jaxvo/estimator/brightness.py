@@ -13,9 +13,8 @@ residuals is the offset (robust to the half of them that belong to something els
 Offsets under a third of ``thresh_lum`` are left alone: the inlier test and the Huber
 weights absorb them, and fitting them only adds noise. The reference's intensities are
 shifted; the current image, whose gradients the Jacobian uses, is left as it is.
-A gain (DSO's affine model) was tried too: matching the quartiles of the two sides'
-luminance over the same pixels was noisier (Bonn crowd, seeds 0-2, RPE 1 s 0.084 against
-0.070 m/s without any compensation).
+Only an offset is fitted, no gain (DSO's affine model): a gain fitted over the same pixels
+is noisier than the offset it adds to (docs/decisions/brightness.md).
 """
 from __future__ import annotations
 
@@ -52,11 +51,12 @@ def masked_median(x, mask):
 
     Each middle value is found by bisection on the value (count the values at or below the
     midpoint, keep the half that holds it), then snapped to the largest value at or below the
-    upper end: O(N) per step and no sort. XLA's CPU sort made ``jnp.nanmedian`` of the ~8500
-    points of a level cost 1.1 ms; these 40 steps for both middle values cost 0.2 ms.
+    upper end: O(N) per step and no sort, where XLA's CPU sort makes ``jnp.nanmedian`` of a
+    level's points several times slower (docs/decisions/cpu-kernels.md).
     (:func:`jaxvo.estimator.solvers.robust_scale` reads the Huber scale's median of |r| off a histogram
     instead, to a bin's width; the offset is compared with thresh_lum / 3 and shifts every
-    reference pixel, and this one reproduces the ``jnp.nanmedian`` the offset was measured with.)"""
+    reference pixel, and this one reproduces ``jnp.nanmedian``'s value exactly;
+    docs/decisions/brightness.md.)"""
     n = jnp.sum(mask)
     k = jnp.stack([(n - 1) // 2, n // 2])          # ranks (from 0) of the two middle values
     lo = jnp.min(jnp.where(mask, x, jnp.inf)) - 1.0

@@ -34,8 +34,9 @@ def checked_config(config: Optional[Config], camera: Camera) -> Config:
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a jaxvo.Camera, got {type(camera).__name__} "
                          f"(e.g. jaxvo.camera.PRESETS['fr2'])")
-    # the checks cost ~0.2 ms (scratch timing), every estimate: a (config, camera) pair that passed once is not
-    # checked again (equal values pass equally; configs holding arrays are not hashable: checked)
+    # the checks cost a fraction of a millisecond at every estimate (docs/decisions/cpu-kernels.md):
+    # a (config, camera) pair that passed once is not checked again (equal values pass equally;
+    # configs holding arrays are not hashable: checked)
     try:
         known = (config, camera) in _CHECKED
     except TypeError:
@@ -114,8 +115,8 @@ _ONES: dict = {}   # (h, w) -> read-only float32 ones: the weights when none are
 
 def as_float32(x):
     """``x`` as float32 without a dispatch per array: NumPy (and lists) stay on the host, as NumPy,
-    and travel with the compiled call (one transfer, not one ``jnp.asarray`` each: ~0.1 ms per
-    array per estimate); JAX arrays (and tracers) stay where they are."""
+    and travel with the compiled call (one transfer, not one ``jnp.asarray`` dispatch per array
+    and estimate; docs/decisions/cpu-kernels.md); JAX arrays (and tracers) stay where they are."""
     if isinstance(x, jax.Array):
         return x if x.dtype == jnp.float32 else x.astype(jnp.float32)
     return np.asarray(x, np.float32)

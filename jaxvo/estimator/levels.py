@@ -63,12 +63,10 @@ def _level_groups(config: Config, L: int, width: int, height: int):
     it) with its point lists padded to the longest, as long as the padding of all groups stays
     within ``_PAD_BUDGET`` of the refinement points of all levels: a level padded to a finer
     one's points works through all of them. Default tiles: levels 3-1 (4800 points each, no
-    padding). The paper's every pixel: levels 3-2 (4800 and 19200 points, 3.5 % padding; XLA
-    compiled its estimator in 7.0 instead of 9.4 s, at 1.04x / 1.03x the time per static / Bonn
-    pair: docs/decisions/scan-levels.md; levels 3-1 as one group took 1.5x the time
-    per pair in a scratch run). Each level without RANSAC is a group of its own: those compile in about a
-    second each (classic with its four levels as one group took up to 1.37x the time per pair,
-    for 1 s less compilation: see ``Config.scan_levels``)."""
+    padding). The paper's every pixel: levels 3-2 (4800 and 19200 points, 3.5 % padding): more
+    padding would cost more time per pair than the shorter compilation saves. Each level
+    without RANSAC is a group of its own: those compile in about a second each, and scanning
+    them costs time per pair for little less compilation (docs/decisions/scan-levels.md)."""
     levels = range(L - 1, config.finest_level - 1, -1)
     if not config.scan_levels:
         return [[level] for level in levels]

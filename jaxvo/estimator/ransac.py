@@ -191,8 +191,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     denominator is the number of scoring points with valid reference depth; the loop stops
     early once the best hypothesis's inlier ratio, or its share of the z^depth_power-weighted
     total, exceeds early_exit_ratio (far pixels fail the fixed depth threshold more often, so
-    the surface share alone drew 36 instead of 15 hypotheses per static fr2_desk pair, the
-    pixel share alone 89 instead of 70 per Bonn pair; experiments/speed.py). table: the
+    either share alone draws more hypotheses than needed; docs/decisions/depth-weighting.md). table: the
     :func:`sampling_table` to draw sample centres from (default the level's). offset: added to
     the luminance of the sampled reference pixels (see :func:`fit_hypothesis`). T_other: an
     optional further (4, 4) candidate, scored beside T_init before any hypothesis (the pose a

@@ -100,9 +100,9 @@ def select_points(level: Level, camera: Camera, block: int = 1) -> RefPoints:
     # tile's pixels (the first maximum; a NaN before any number) in two reductions: the best
     # column of each of the tile's rows, then the first row holding the tile's maximum. Both
     # reduce over a contiguous axis. A (hb, block, wb, block) reshape reduced over its interleaved
-    # axes 1 and 3 ran slowly on the CPU, and an argmax over block * block strided views, stacked,
-    # compiled one kernel per view: 32 of the default estimator's 607, 0.84 of its 8.0 LLVM CPU s
-    # (2026-11-26); this is 0.41 against 0.54 ms at 640x480, with 29 kernels fewer in all
+    # axes 1 and 3 runs slowly on the CPU, and an argmax over block * block strided views, stacked,
+    # compiles one kernel per view; two contiguous reductions are faster and compile fewer
+    # kernels (docs/decisions/cpu-kernels.md)
     rows = score.reshape(hb * block, wb, block)                 # (image row, tile column, pixel)
     row_best = jnp.max(rows, -1).reshape(hb, block, wb)
     row_k = jnp.argmax(rows, -1).reshape(hb, block, wb)

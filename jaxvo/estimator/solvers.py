@@ -43,8 +43,8 @@ MAD_TO_SIGMA = 1.4826
 # XLA options for every program that runs these solvers (``jit`` below). Loop-invariant code
 # motion is off: it hoists the invariant parts of each of the evaluations that jaxopt's update makes
 # at one point (residual, auxiliary output, Jacobian) into separate loop-carried values, after which
-# XLA can no longer merge the evaluations into one pass over the pixels (measured: the consensus
-# refinement 2-4x slower with it on, the results bitwise the same).
+# XLA can no longer merge the evaluations into one pass over the pixels, which makes the
+# consensus refinement several times slower for the same results (docs/decisions/cpu-kernels.md).
 COMPILER_OPTIONS = {"xla_disable_hlo_passes": "while-loop-invariant-code-motion"}
 
 
@@ -77,9 +77,9 @@ def _terms(delta, T0, ref, cur, camera, depth_weight):
 
 
 # jitted: jaxopt's solver and the LM loops evaluate the system at 18 places of the default
-# estimator, with 3 distinct shapes; a nested jit traces it once per shape (the lowered program
-# 13,833 instead of 15,034 lines; its first trace in a fresh process 1.1 instead of 1.2-1.3 s in a
-# scratch timing). XLA inlines the call: the same compiled program, the same poses.
+# estimator, with 3 distinct shapes; a nested jit traces it once per shape, so the lowered
+# program is smaller and traced sooner (docs/decisions/cpu-kernels.md). XLA inlines the call:
+# the same compiled program, the same poses.
 @jax.jit
 def _system(delta, T0, ref, cur, camera, w, depth_weight):
     """The weighted normal equations at exp(delta) @ T0 in one pass over the pixels: the (7, 7)

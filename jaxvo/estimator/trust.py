@@ -74,9 +74,8 @@ def final_counts(ref_l, res, inl, dense, wts, config) -> _Counts:
     reduction (:func:`pixel_counts`). ``wts``: (N,) bool, the pixels the residual scale is taken over.
 
     The statistics count every reference pixel with valid depth, trusted as static or not:
-    counting only the pixels the segmentation trusts was measured worse on Bonn crowd
-    (experiments/keyframes.py defaults, seeds 0-2: RPE 1 s 0.099 vs 0.080 m/s, ATE 0.064 vs
-    0.056 m), since a wrong segmentation then also hides a wrong estimate."""
+    counting only the pixels the segmentation trusts would let a wrong segmentation also hide
+    a wrong estimate (docs/decisions/failure-flag.md)."""
     ref_valid = dense.valid
     g = jnp.sqrt(ref_l.igrad[..., 1] ** 2 + ref_l.igrad[..., 2] ** 2).reshape(-1)
     textured = ref_valid & (g > config.thresh_lum / 6)
@@ -89,8 +88,8 @@ def final_counts(ref_l, res, inl, dense, wts, config) -> _Counts:
 
 def pixel_counts(*masks):
     """The True pixels of each of ``masks`` (bool arrays of one shape), int32 scalars, in one
-    reduction over the pixels: XLA reduces each ``jnp.sum`` in a pass of its own over them (1.0
-    against 0.25 ms for 7 counts at 640x480 on a 2-core Xeon), and integer sums are exact in any
+    reduction over the pixels: XLA reduces each ``jnp.sum`` in a pass of its own over them
+    (docs/decisions/cpu-kernels.md), and integer sums are exact in any
     order, so the counts are those of ``jnp.sum``."""
     ops = tuple(m.astype(jnp.int32) for m in masks)
     dims = tuple(range(ops[0].ndim))

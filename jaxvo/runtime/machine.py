@@ -8,9 +8,8 @@ program and the way it runs are the same. Three things on the machine decide tha
 * the number of cores the process may use: XLA's matrix products (the 7x7 normal equations
   of every Gauss-Newton step, a sum over all pixels) split that sum across XLA's threads,
   one per usable core, so another core count adds the pixels in another order. The pose then
-  differs at float rounding (1e-7 on one pair), and the robust steps of a tracked crowd can
-  grow that: Bonn crowd, 160 frames, seed 0, on one and on two cores of the same 2-core Xeon,
-  ATE 0.0194 and 0.0212 m (``taskset -c 0 jaxvo run ...`` against ``jaxvo run ...``).
+  differs at float rounding, and the robust steps of a tracked crowd can grow that to
+  millimetres of ATE (docs/decisions/machine-record.md).
 
 :func:`record` collects them; ``jaxvo run`` writes it into its trajectory header
 (``# machine: {...}``), and ``jaxvo run --config TRAJ`` names what differs (:func:`differences`)

@@ -17,8 +17,8 @@ trajectory's relative pose, at full resolution. In a view, a reference pixel is
   the sensor's noise and the poses' error growing with depth) or more, or its luminance,
   less the pair's exposure offset (the median luminance residual of the pixels whose depth
   agrees, :func:`jaxvo.estimator.brightness.masked_median`), differs by more than ``thresh_lum`` plus
-  the view's gradient magnitude there (what a one-pixel misalignment at an edge explains;
-  without it the precision on the fr2_desk augmentation's seeds 0-5 was 0.76 instead of 0.79).
+  the view's gradient magnitude there (what a one-pixel misalignment at an edge explains,
+  which would otherwise flag the static scene's edges; docs/decisions/hindsight-masks.md).
 
 A pixel is moving when it changed in at least ``ratio`` of the views that saw it. The
 reference's 3-D points are then grouped (:func:`jaxvo.tracking.segmentation.coherent_regions`,
@@ -62,13 +62,9 @@ class HindsightParams(NamedTuple):
       Kinect-class depth is quantised in disparity, so its steps grow with z^2, and a pose
       a few tenths of a degree off over a second moves a wall 3 m away by centimetres.
 
-    Chosen on the dynamic augmentation of fr2_desk (2 persons, seeds 0-5, the default odometry's
-    poses, pooled precision / recall; scratch scans): ratio 0.25 and region_ratio 0.5 of
-    0.25 / 0.3 / 0.4 and 0.3 / 0.5 / 0.7 were the pair with precision and recall closest together
-    (0.79 / 0.75 with depth_slope 0). depth_slope 0 flagged whole stretches of Bonn crowd's wall
-    3-3.5 m away (its depth residuals 3-8 cm in the views 16-48 frames away); 0.005 and 0.01
-    clear them, at 0.80 / 0.74 and 0.80 / 0.72 on the augmentation, whose scene is 1-2.5 m away.
-    Numbers with these values: ``experiments/results/hindsight_masks/hindsight_masks.md``.
+    ratio and region_ratio balance the masks' precision and recall; depth_slope keeps a wall
+    3 m away, whose depth residuals over a second grow to centimetres, from being flagged
+    (docs/decisions/hindsight-masks.md).
     """
     ratio: float = 0.25
     region_ratio: float = 0.5
@@ -127,8 +123,8 @@ def sequence_masks(frame_at: Callable[[int], object], poses, camera: Camera, con
     poses: (N, 4, 4) T_world_cam (e.g. :attr:`jaxvo.tracking.odometry.Track.poses`); a frame whose pose is
       not finite (NaN) takes part neither as reference nor as view. Give NaN for the frames whose
       pose is a guess (``Track.valid`` False: the estimate failed and the previous pose was kept;
-      ``# held`` lines of a trajectory file, :func:`jaxvo.data.trajectory.read_held`): on handheld-fast
-      seed 2 the masks' precision was 0.52 with its 19 held frames as views, 0.74 without.
+      ``# held`` lines of a trajectory file, :func:`jaxvo.data.trajectory.read_held`): a view at a
+      guessed pose sees the static scene change (docs/decisions/hindsight-masks.md).
     config: its ``thresh_lum``, ``thresh_depth`` and ``max_depth`` (default ``Config()``).
     mask: (H, W) bool, True on the frame's moving pixels (see the module docstring).
     """

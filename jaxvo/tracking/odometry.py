@@ -160,7 +160,7 @@ class Odometry:
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
         trust = self.static_map.trust(tuple(frame.depth.shape))
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
-        # and leaving them out costs accuracy (fr2_desk 0.0185 against 0.0179 m/s)
+        # and leaving them out costs accuracy (docs/decisions/calm-mode.md)
         weights = None if self._calm else trust
         return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
                           geometry.inverse(T_ref_prev), weights, T_ref_prev, trust)
@@ -244,8 +244,7 @@ class Odometry:
 
         Without it a camera faster than ``max_step`` divided by the frames since its last pose
         could never be caught again: the guess stays at the held pose, so every later estimate
-        is a bigger step from it and fails too (on the synthetic handheld-fast, seeds 0-3, 18 to
-        88 of 89 frames held, ATE 0.12-0.16 m)."""
+        is a bigger step from it and fails too (docs/decisions/catch-up.md)."""
         failed = self._failed_run()
         if failed == 0:
             return 0.0, 0.0

@@ -58,7 +58,7 @@ __all__ = ["SegmentParams", "MAP_LEVEL", "CUE_LEVEL", "map_depth", "cue_images",
            "coherent_regions", "coherent_flags", "reference_map", "flagged", "static_weight", "upsample"]
 
 # the pyramid level the map lives on: half resolution is ample for person-sized regions
-# and costs a quarter of full resolution (one view's vote of a 640x480 camera: ~0.15 ms on 2 cores)
+# and costs a quarter of full resolution (docs/decisions/cpu-kernels.md)
 MAP_LEVEL = 1
 
 
@@ -80,34 +80,20 @@ class SegmentParams(NamedTuple):
       frame saw the point at its depth but did not explain it (an outlier not hidden in that
       frame): the appearance of a surface moving within itself (:func:`add_current_vote`).
 
-    static_vote 0.25 and region_ratio 0.2 (from 0.5 and 0.3) were chosen on the synthetic
-    seq2, seq3 and handheld-fast (60 frames, exact masks): the moving mask's recall rose from
-    0.76 / 0.70 / - to 0.87 / 0.87 / 0.89 at precision 0.82 / 0.86 / 0.94, with Bonn crowd's
-    trajectory unchanged (RPE 1 s 0.076 against 0.074 m/s, seeds 0-5).
-
-    photo_vote 0.5 (from none: the static vote there too) was chosen from 0.25, 0.5, 0.75 and 1
-    on Bonn crowd, fr2_desk with two synthetic persons (seeds 0-11 each) and the synthetic
-    seq1-3 and handheld-fast: every value improved Bonn crowd (RPE 1 s 0.035-0.044 against
-    0.050 m/s); 1 made the augmentation worse (ATE 0.060 against 0.049 m), 0.75 put seq2's mask
-    precision under 0.8, 0.5 is the middle of the range that did neither (numbers in
-    README and docs/results.md).
+    static_vote and region_ratio are set for the moving mask's recall on sequences with exact
+    masks, leaving the trajectory as it is; photo_vote is the middle of the range that helps
+    crowds without flagging static scene (docs/decisions/segmentation.md).
 
     motion_gain, motion_shift: a region is moving (:func:`motion_regions`) when shifting its
       warped pixels in the image of an earlier view by at least ``motion_shift`` pixels (at
       :data:`CUE_LEVEL`) lowers its mean residual cost (truncated luminance / 30 plus truncated
-      depth, each in [0, 1]) by more than ``motion_gain``; ``inf`` turns the test off. 0.1
-      was chosen on fr2_desk with two synthetic persons (12 seeds; scratch runs with the depth
-      term truncated at a flat 0.1 m): the default's ATE there was 0.034 m at 0.2 against
-      0.016 m at 0.1 (0.038 m without the test); at 0.1 the real fr2_desk, Bonn crowd and the
-      synthetic seq0-3 stay as they were (README, docs/results.md).
+      depth, each in [0, 1]) by more than ``motion_gain``; ``inf`` turns the test off
+      (docs/decisions/later-motion-test.md).
     motion_vote: the log-odds (at least) that a region the motion test flags keeps in the
       evidence carried to later references (:func:`reference_map`; the reference's own trust
       has it at +2 in any case). 2 carries the test's decision as strongly as the reference
-      trusts it. Lower values traded the real Bonn crowd for the augmentation: at 0.5,
-      fr2_desk with two synthetic persons (seeds 0-11) had mask precision / recall 0.831 /
-      0.807 against 0.794 / 0.790 and ATE 0.013 against 0.018 m, but Bonn crowd (12 seeds) RPE
-      1 s 0.033 against 0.028 m/s and ATE 0.029 against 0.025 m, one seed over 0.04 m
-      (scratch runs, issue 10 notes).
+      trusts it; lower values trade the real crowd's accuracy for the synthetic persons' masks
+      (docs/decisions/later-motion-test.md).
     """
     margin: float = 0.1
     slope: float = 0.03
@@ -155,8 +141,8 @@ def cue_images(intensity, depth, max_depth=4.0):
 def _points(depth, camera: Camera):
     """The 3-D points of a depth image as three (h, w) arrays X, Y, Z (camera frame, metres).
 
-    Kept as separate planes on purpose: XLA on CPU runs the element-wise warps below 4-9x
-    slower on interleaved (h * w, 3) points (one vote at 320x240: 0.85 against 0.14 ms).
+    Kept as separate planes on purpose: XLA on CPU runs the element-wise warps below several
+    times slower on interleaved (h * w, 3) points (docs/decisions/cpu-kernels.md).
     """
     h, w = depth.shape
     v = jnp.arange(h, dtype=jnp.float32)[:, None]
@@ -213,7 +199,7 @@ def add_votes(L, ref_depth, view_depths, T_views_ref, valid, camera: Camera, par
     view_depths: (M, h, w); T_views_ref: (M, 4, 4); valid: (M,) bool (False = padding / no pose).
     """
     # one element-wise pass per view, summed as it goes: a vmap over the views and a sum over
-    # the view axis ran 1.6x slower on the CPU (12 views at 320x240: 6.4 against 4.0 ms)
+    # the view axis is slower on the CPU (docs/decisions/cpu-kernels.md)
     delta = jnp.zeros_like(L)
     for k in range(view_depths.shape[0]):
         behind, seen = vote(ref_depth, view_depths[k], T_views_ref[k], camera, params)
@@ -295,8 +281,8 @@ def region_labels(depth, camera: Camera, clusters: int = 24, iterations: int = 8
     def assign(points, C):
         # nearest centre by |c|^2 - 2 p.c (|p|^2 is the same for every centre), one running
         # minimum per centre: element-wise passes that XLA fuses into one loop. An argmin over
-        # an (N, k) distance array was most of a new reference's map update on the CPU
-        # (0.45 against 6.5 ms for the 76,800 pixels of a 320x240 map).
+        # an (N, k) distance array is most of a new reference's map update on the CPU
+        # (docs/decisions/cpu-kernels.md).
         x, y, z = points
         cc = jnp.sum(C * C, -1)
         best = jnp.full(x.shape, jnp.inf, x.dtype)
@@ -332,21 +318,14 @@ def motion_regions(labels, k: int, ref_cue, view_cue, T_view_ref, camera: Camera
     by something in front in the view, outside it or without depth do not count; every other
     pixel of the level) falls by more than ``params.motion_gain`` at its best shift, and that
     shift is at least ``params.motion_shift`` pixels long, is moving. The depth truncation
-    grows with z^2 because flat at 0.1 m it flagged the real fr2_desk's floor 3.5 m away,
-    whose depth changes fast along the image at a grazing angle. In a scratch measurement on
-    fr2_desk with two synthetic persons (seeds 0, 2, 3; the default odometry's poses, 8 frames
-    apart, flat truncation), the regions flagged held 72-86 % of the persons' pixels at 83-94 %
-    precision, where the free-space votes of views 1-4 frames back held 1-3 % (issue 10 notes).
-    Each region's mean luminance residual in place (the zero shift) is taken off its residuals
-    at every shift: without it a change of exposure between the view and the reference let a
-    shift onto brighter or darker surroundings win, and on the real Bonn crowd frames the test
-    flagged much of the white back wall around the persons (`experiments/figures.py`'s map
-    39.6 % moving, 24.0 % with the test off, 27.4 % with the offset taken off). Per region,
-    because exposure shifts bright and dark surfaces by different amounts: one offset for the
-    whole view, the median as :mod:`jaxvo.estimator.brightness` fits it for the estimate, left much of
-    the wall flagged (34.2 %). Taking off each shift's own offset instead cleared the wall as
-    well but flagged more of fr2_desk's static low-texture surfaces (augmented pooled
-    precision 0.786 against 0.810; scratch measurements, issue 10 notes).
+    grows with z^2, as the sensor's noise does: a flat one flags a floor seen at a grazing
+    angle, whose depth changes fast along the image. Each region's mean luminance residual in
+    place (the zero shift) is taken off its residuals at every shift, so that a change of
+    exposure between the view and the reference does not let a shift onto brighter or darker
+    surroundings win; per region, because exposure shifts bright and dark surfaces by
+    different amounts, and once per region rather than per shift, since a shift's own offset
+    also lets static low-texture surfaces line up better when shifted
+    (docs/decisions/later-motion-test.md).
 
     labels, k: :func:`region_labels` of the reference at the map level (h, w).
     ref_cue, view_cue: (intensity, depth) at :data:`CUE_LEVEL` (:func:`cue_images`), (h/2, w/2).
@@ -439,12 +418,7 @@ def reference_map(L, depth, labels, moved, params: SegmentParams):
     region, also the static pixels of a region that holds part of a person. Carried at +2
     they counted towards the next reference's regions, whose boundaries differ, so each
     reference could flag more of the static scene around a person, and static votes undo +2
-    only slowly (8 views; behind a person few views see it). On fr2_desk with two synthetic
-    persons the moving mask's precision / recall went from 0.779 / 0.797 to 0.794 / 0.790 on
-    seeds 0-11 and from 0.769 / 0.816 to 0.792 / 0.837 on seeds 12-23, held out of the choice;
-    Bonn crowd's trajectory stayed within its seed spread (``experiments/results/``
-    ``augmented_default.md``, ``augmented_heldout.md``, ``bonn_default.md`` against the same
-    commands at commit 9bb7e7a; README "The default tracking").
+    only slowly (8 views; behind a person few views see it; docs/decisions/segmentation.md).
     """
     valid = depth > 0
     moved = moved & valid

@@ -67,8 +67,8 @@ def _unexplained(inlier_mask, valid_mask, occluded_mask, shape):
     return segmentation.photometric_outliers(valid_mask & ~inlier_mask & ~occluded_mask, valid_mask, shape)
 
 
-# a program of its own, not fused into _unexplained: as one program the two ran 0.9 ms on the
-# 2-core CPU, as two 0.25 ms (320x240 map; XLA's CPU code for the fused loop is slower)
+# a program of its own, not fused into _unexplained: XLA's CPU code for the fused loop is
+# slower than the two apart (docs/decisions/cpu-kernels.md)
 @jax.jit
 def _update_map(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
     return segmentation.add_current_vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params)
@@ -159,14 +159,10 @@ _FEW_VIEWS = 4
 _CUE_BACK = 8
 # a reference whose test had no view at least this many frames back (the first references,
 # chosen frame to frame while the empty map saw nothing move) is tested once more against the
-# first frame at least this many frames after it whose estimate succeeded, at that estimate.
-# Persons who moved 0-2 pixels at the test's level in the 2 frames before such a reference went
-# unflagged for every frame estimated against it: on fr2_desk with two synthetic persons (seeds
-# 0-11) the estimates against references 1-3 held 36 % of the missed moving pixels (recall
-# 0.40 there), and the pooled mask precision / recall was 0.794 / 0.790; with this test 0.810 /
-# 0.809 and ATE 0.016 against 0.018 m (seeds 12-23, held out: 0.792 / 0.837 -> 0.808 / 0.846,
-# ATE 0.016 -> 0.013 m; Bonn crowd unchanged; README "The default tracking"). A second test at
-# 6 frames after, or tests at 2, 4 and 6, were worse (0.797 / 0.806 and 0.747 / 0.772).
+# first frame at least this many frames after it whose estimate succeeded, at that estimate:
+# persons who moved 0-2 pixels at the test's level in the 2 frames before such a reference
+# would otherwise go unflagged for every frame estimated against it
+# (docs/decisions/later-motion-test.md)
 _CUE_AHEAD = 3
 # the test's shifts and regions are sized for 160x120 at its level (a 640x480 camera); on the
 # 80x60 of a 320x240 camera a region is a few dozen pixels, many of them mixed depths at its
