@@ -369,7 +369,7 @@ def test_figures_small(tmp_path):
     hs = cv2.imread(str(out / "bonn_hindsight.png"))
     assert hs is not None and hs.shape == seg.shape
     assert cv2.imread(str(out / "bonn_map.png")) is not None
-    from jaxvo.pipelines.mapping import read_ply
+    from jaxvo.data.ply import read_ply
     pts, cols = read_ply(tmp_path / "map.ply")
     assert len(pts) > 1000 and cols.shape == (len(pts), 3)
 
