@@ -131,7 +131,7 @@ class Odometry:
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
         self._window: list = []         # the keyframe window (policy.window > 1), oldest first
         self._edges: dict = {}          # (a, b) keyframes -> (T_b_a float64, information (6, 6))
-        self._key_trust: dict = {}      # keyframe -> its static weights when it stopped being the reference
+        self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
 
     def __len__(self) -> int:
@@ -218,9 +218,10 @@ class Odometry:
         for n, k in enumerate(reversed([k for k in self._window if k != ref and k in self._key_trust])):
             key = jax.random.fold_in(keys, n)
             T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
+            trust, calm = self._key_trust[k]
             again = estimate_motion(self._frames[k], pair.cur, self.camera, self.config, key,
-                                    init=geometry.inverse(T_k_prev), weights=self._key_trust[k])
-            judged_again = self._judge(again, T_k_prev, self._key_trust[k], extra)
+                                    init=geometry.inverse(T_k_prev), weights=None if calm else trust)
+            judged_again = self._judge(again, T_k_prev, trust, extra)
             if judged_again.valid:
                 return k, again, judged_again
         return ref, est, judged
@@ -262,12 +263,13 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
+    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights, trust=None):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess). Returns (estimate, :meth:`_judge` of it)."""
+        (float64 T_ref_guess) with ``weights``. Returns (estimate, :meth:`_judge` of it with the
+        reference's static weights ``trust``, default ``weights``)."""
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
-        return est, self._judge(est, T_ref_prev, weights)
+        return est, self._judge(est, T_ref_prev, weights if trust is None else trust)
 
     def _stale_allowance(self):
         """(metres, degrees) the camera may have moved beyond one frame's step while the latest
@@ -377,8 +379,9 @@ class Odometry:
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
         if old in self._window:   # its weights serve the estimates against it while it stays in the window
-            self._key_trust[old] = self.static_map.trust(tuple(self._frames[old].depth.shape))
-        if self.policy.window > 1 and (not self._window or new - self._window[-1] >= self.policy.lag):
+            self._key_trust[old] = (self.static_map.trust(tuple(self._frames[old].depth.shape)), self._calm)
+        # a held frame (restart) has no pose of its own to refine and must not push keyframes out
+        if self.policy.window > 1 and self.valid[new - 1] and new - self._window[-1] >= self.policy.lag:
             self._anchor[new] = self._windowed_anchor(new)
         else:
             self._anchor[new] = self._fused_anchor(new, j)
@@ -402,17 +405,23 @@ class Odometry:
         # the keyframes that stay in the window beside new
         members = [k for k in self._window[-(policy.window - 1):] if k in self._key_trust]
         edges = {}
-        parent = self.references[new - 1]
-        if parent in members and new in self._info:
-            # frame new's own estimate against its reference, smoothed (fitted with its neighbours)
-            edges[(parent, new)] = (geometry.inverse(pose) @ self._chain_pose(parent), self._info[new])
+        if members and new in self._info:
+            # the chain back to a keyframe of the window: frame new's own estimate (smoothed, fitted
+            # with its neighbours) where its reference is one, else through the references between
+            # (frame to frame while calm), each hop adding an error like new's own
+            f, hops = new, 0
+            while f > members[0] and f not in members:
+                f, hops = self.references[f - 1], hops + 1
+            if f in members:
+                edges[(f, new)] = (geometry.inverse(pose) @ self._chain_pose(f), self._info[new] / hops)
         keys = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 2)   # apart from frame new's own key
         for n, k in enumerate(reversed(members)):
             if (k, new) in edges:
                 continue
             key = jax.random.fold_in(keys, n)
             T_k_new = geometry.inverse(self._chain_pose(k)) @ pose
-            est, judged = self._estimate_against(k, self._frames[new], key, T_k_new, self._key_trust[k])
+            trust, calm = self._key_trust[k]
+            est, judged = self._estimate_against(k, self._frames[new], key, T_k_new, None if calm else trust, trust)
             if judged.valid:
                 edges[(k, new)] = (judged.T, est.information)
         self._edges.update({e: (Z, np.asarray(info, np.float64)) for e, (Z, info) in edges.items()})
