@@ -119,6 +119,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
               help="Keep a static/dynamic segmentation across frames (free-space votes of earlier and "
                    "later frames, carried from reference to reference) and trust only static pixels "
                    "[default: on, off with --frame-to-frame].")
+@click.option("--window", type=click.IntRange(min=1), default=None,
+              help="Keyframes in the window: each new keyframe is estimated against the others and their "
+                   "poses are refined together; a frame that fails against its reference is tried against "
+                   "them [default: 3; 1 = the single reference; 1 with --frame-to-frame].")
 @click.option("--frame-to-frame", is_flag=True,
               help="The paper's chaining: every frame against the previous one, no segmentation. With "
                    "--config '{\"prior_candidate\": \"raw\", ...}' or --paper, the published algorithm.")
@@ -131,7 +135,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @handle_errors
 def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
-            keyframe_lag, segment, frame_to_frame, paper, no_progress, force):
+            keyframe_lag, segment, window, frame_to_frame, paper, no_progress, force):
     dirs = expand_sequences(sequence_dirs)
     ctx = click.get_current_context()
 
@@ -146,7 +150,8 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                                    if name == "--out" else f"{name} is for one sequence, got {len(dirs)} sequences")
     setup = setup_run(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                       finest_level=finest_level, seed=given("seed", seed), keyframe_gap=keyframe_gap,
-                      keyframe_lag=keyframe_lag, segment=segment, frame_to_frame=frame_to_frame, paper=paper,
+                      keyframe_lag=keyframe_lag, segment=segment, window=window, frame_to_frame=frame_to_frame,
+                      paper=paper,
                       camera_preset=camera_preset, fx=fx, fy=fy, cx=cx, cy=cy, depth_scale=depth_scale,
                       max_dt=given("max_dt", max_dt), start=given("start", start), max_frames=max_frames,
                       mask_dir=mask_dir, from_header=len(dirs) == 1)

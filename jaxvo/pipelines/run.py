@@ -334,12 +334,12 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
 # ----------------------------------------------------------------------------- folders, as jaxvo run takes them
 
 def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
-                 segment: Optional[bool] = None):
+                 segment: Optional[bool] = None, window: Optional[int] = None):
     """:class:`jaxvo.config.TrackConfig` from ``jaxvo run``'s options on top of ``base`` (default
     ``TrackConfig()``, jaxvo's segmented keyframes): ``frame_to_frame`` (the paper's chaining),
     ``gap`` / ``lag`` in frames (lag defaults to gap // 2; None keeps base's; a gap turns off the
-    calm frame-to-frame mode), ``segment`` (None keeps base's). A bad combination raises
-    ValueError naming the options."""
+    calm frame-to-frame mode), ``segment`` and ``window`` (keyframes in the window; None keeps
+    base's). A bad combination raises ValueError naming the options."""
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
@@ -354,6 +354,8 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
         policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag), calm_fraction=0.0)
     if segment is not None:
         policy = policy._replace(segment=bool(segment))
+    if window is not None:
+        policy = policy._replace(window=int(window))
     try:
         policy.validate()
     except ValueError:
@@ -417,7 +419,7 @@ class RunSetup:
 
 
 def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=None, finest_level=None,
-              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None,
+              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None, window=None,
               frame_to_frame: bool = False, paper: bool = False, camera_preset=None, fx=None, fy=None, cx=None,
               cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None,
               from_header: bool = True) -> RunSetup:
@@ -429,7 +431,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     user masks, intrinsics), so the run is reproduced bitwise on the same machine. Options not
     given and not in the file take their defaults (seed 0, start 0, max_dt 0.02 s).
     ``paper``: :meth:`jaxvo.config.Config.paper` and frame to frame; ``keyframe_gap``,
-    ``keyframe_lag``, ``segment``, ``frame_to_frame``: :func:`track_policy`.
+    ``keyframe_lag``, ``segment``, ``window``, ``frame_to_frame``: :func:`track_policy`.
     """
     from jaxvo.config import Config, TrackConfig
 
@@ -451,7 +453,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     if paper:
         config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
                               finest_level=config.finest_level)
-    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment)
+    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment, window)
     sq = (settings.sequence or {}) if from_header else {}
     if sq:
         start = sq.get("start", 0) if start is None else start

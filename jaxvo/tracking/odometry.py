@@ -102,6 +102,12 @@ class Odometry:
     carried from reference to reference with the estimated motion and updated from every
     estimate. :func:`track` and ``jaxvo run`` are loops over :meth:`add`.
 
+    The keyframe window (``TrackConfig.window`` keyframes, default 3): a new reference joins it,
+    is estimated against its other keyframes, and the window's poses are refined as a pose graph
+    (:mod:`jaxvo.tracking.window`), so the poses later frames chain from rest on several estimates,
+    not one. A frame that fails against its reference is estimated against the window's older
+    keyframes before it is held (``TrackConfig.recover``). Poses already returned never change.
+
     Frame j (j >= 1) is estimated with key ``jax.random.fold_in(key, j - 1)``; the same key
     and frames give bitwise the same poses. Each result is pulled to the host before the
     next frame (the next reference and initial pose depend on it).
@@ -196,7 +202,8 @@ class Odometry:
         if valid:
             self._rel[j] = T
             self._info[j] = est.information
-        static_mask = self.static_map.static_mask(weights, frame.depth.shape)
+        static_mask = self.static_map.static_mask(weights if used == ref else self._key_trust[used][0],
+                                                  frame.depth.shape)
         if valid and used == ref:  # the current frame's view of the reference, at the estimated pose
             self.static_map.update(est, ref, j, T)
         result = TrackStep(j, used, est, pose, valid, static_mask)
