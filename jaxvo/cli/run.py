@@ -1,13 +1,14 @@
 """``jaxvo run``: track one sequence, or several as batches, and write their trajectories."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
 import numpy as np
 
 from jaxvo.camera import PRESETS
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, device
+from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, compile_note, device
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
@@ -156,12 +157,14 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                    "(README: Reproducible runs)", err=True)
     plan = plan_run(dirs, setup, out=out, out_dir=out_dir, save_masks=save_masks, config_file=config_file,
                     force=force)
+    _print_provenance(config_file, setup, plan)
     if len(dirs) > 1:
         _run_many(plan, no_progress)
         return
     seq, config = plan.sequences[0], setup.config
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
                f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}, device {device()}", err=True)
+    compile_note()
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     # the trajectory grows, flushed line by line, under a .partial name; it gets its name when complete
     partial = partial_path(plan.outputs[0])
@@ -184,8 +187,33 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
         if pbar is not None:
             pbar.close()
     _print_run_summary(report.runs[0])
-    if report.interrupted:
+    _leave(report, ctrl_c)
+
+
+def _leave(report, ctrl_c):
+    """Exit 130 after Ctrl-C (also one pressed after the last pair); else one ``error:`` line per
+    sequence that is not a success (a frame that did not read, nothing usable) and exit 2."""
+    if report.interrupted or ctrl_c.interrupted:
         exit_now(130)
+    for problem in report.problems:
+        click.echo(f"error: {problem}", err=True)
+    if report.problems:
+        sys.exit(2)
+
+
+def _print_provenance(config_file, setup, plan):
+    """With --config: where each setting came from (one line), the settings the file lacked
+    (one note), and a note when its header was written for another sequence."""
+    if not setup.sources:
+        return
+    click.echo(f"settings      {'; '.join(setup.sources)}", err=True)
+    if setup.missing:
+        click.echo(f"note: {config_file} lacks {', '.join(setup.missing)} (written by an older jaxvo?): filled "
+                   f"with today's defaults, so the rerun may differ from the recorded one", err=True)
+    recorded = setup.header_sequence
+    if recorded is not None and len(plan.sequences) == 1 and Path(str(recorded)).name != plan.sequences[0].name:
+        click.echo(f"note: {config_file} was written for {recorded}; its settings (intrinsics, depth scale, "
+                   f"frames) are applied to {plan.sequences[0].path} (override them with options)", err=True)
 
 
 def _run_many(plan, no_progress):
@@ -195,6 +223,7 @@ def _run_many(plan, no_progress):
     seqs, config = plan.sequences, plan.setup.config
     click.echo(f"jaxvo run: {len(seqs)} sequences in {len(plan.batches)} batch(es) by image size, method "
                f"{config.method}, {len(jax.devices())} device(s) ({device()}, ...)", err=True)
+    compile_note()
     pbar = None if no_progress else progress_bar(total=sum(len(s) - 1 for s in seqs), unit="frame",
                                                  desc=config.method)
     ctrl_c = CtrlC()
@@ -211,6 +240,11 @@ def _run_many(plan, no_progress):
     lines = []
     for run in report.runs:
         r = run.result
+        if r is None:
+            why = "its batch failed, see its error line" if run.problem else "interrupted before its batch"
+            kept = run.trajectory if run.trajectory.exists() else "-"
+            lines.append(f"{run.sequence.name}: not tracked ({why}), trajectory {kept}")
+            continue
         line = (f"{run.sequence.name}: {len(r.stamps)} frames, failures {r.failures}, inlier ratio "
                 f"{fmt(float(np.mean(r.inlier_ratio)) if r.pairs else float('nan'), 3)}, compile "
                 f"{fmt(r.compile_s, 1)} s, {fmt(r.fps, 2)} frames/s (batch), trajectory {run.trajectory}")
@@ -220,10 +254,13 @@ def _run_many(plan, no_progress):
                 line += f", RPE 1 s {errs.rpe_1s.trans_drift.rmse:.4f} m/s"
             if errs.ate is not None:
                 line += f", ATE {errs.ate.rmse:.4f} m"
+        if r.error is not None:
+            line += " (stopped early: see its error line)"
+        elif r.interrupted:
+            line += " (interrupted)"
         lines.append(line)
     click.echo("\n".join(lines))
-    if report.interrupted:
-        exit_now(130)
+    _leave(report, ctrl_c)
 
 
 def _print_run_summary(run):
