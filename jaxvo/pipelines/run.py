@@ -40,7 +40,7 @@ from jaxvo.pipelines.messages import one_line
 __all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header",
            "load_sequence", "resolve_camera", "stamp_name", "RunSettings", "ReaderOptions", "RunSetup", "RunPlan",
            "SequenceRun", "RunReport", "track_policy", "expand_sequences", "setup_run", "plan_run", "execute_run",
-           "count_poses", "mask_name", "MASK_INDEX", "unusable_message"]
+           "count_poses", "check_camera_size", "mask_name", "MASK_INDEX", "unusable_message"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,6 +157,25 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
         seq.camera_source += " with " + ", ".join(f"{k}={v:g}" for k, v in over.items())
         seq.camera.validate()
     return seq
+
+
+def check_camera_size(seq: TumSequence) -> None:
+    """Intrinsics for another image size than the sequence's first frame raise DatasetError with
+    what fixes it: the size is the images', so leave a preset out (the folder's own intrinsics,
+    else its name's preset scaled to the images) or write the calibration file for that size."""
+    _, depth = seq.read_images(0)
+    h, w = depth.shape[:2]
+    c = seq.camera
+    if (c.width, c.height) == (w, h):
+        return
+    source = seq.camera_source
+    if source.startswith("preset"):
+        fix = (f"the {source} is for {c.width}x{c.height}; leave --camera out to use the folder's own "
+               f"intrinsics, else its name's preset scaled to {w}x{h}")
+    else:
+        fix = (f"the intrinsics from {source} are for {c.width}x{c.height}; write them for {w}x{h} there (or move "
+               f"that file away: the folder name's preset is then scaled to {w}x{h})")
+    raise DatasetError(f"{seq.path}: the images are {w}x{h}, which does not match the camera: {fix}")
 
 
 def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
@@ -611,6 +630,7 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
         seq = setup.reader.open(dirs[0])
         if len(seq) < 2:
             raise DatasetError(f"{dirs[0]}: only {len(seq)} frame(s) to use, need at least 2")
+        check_camera_size(seq)
         seq.check(1)                 # a bad first image is reported before compiling
         seq.groundtruth              # and so is ground truth that does not cover the frames
         return RunPlan(setup, (seq,), (out,), ((0,),), None if save_masks is None else Path(save_masks))
@@ -622,6 +642,7 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
         if len(seq) < 2:
             raise DatasetError(f"{seq.path}: only {len(seq)} frame(s) to use, need at least 2")
         check_output(o, [s.path for s in seqs] + [config_file], force, "--out-dir")
+        check_camera_size(seq)
         seq.check(1)
     groups: dict = {}
     for k, seq in enumerate(seqs):
