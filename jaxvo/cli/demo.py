@@ -51,10 +51,10 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
 @compilation_cache
 @handle_errors
 def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress, force):
-    compile_note()
     ctrl_c = CtrlC()
     result = ctrl_c.run(lambda: run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size,
-                                         sensor=sensor, progress=not no_progress, force=force, check=ctrl_c.check),
+                                         sensor=sensor, progress=not no_progress, force=force, check=ctrl_c.check,
+                                         on_start=compile_note),
                         lambda: click.echo("\ninterrupted (Ctrl-C)", err=True))
     if ctrl_c.interrupted:   # pressed after the last step: the files are complete, the exit code says so
         ignore_ctrl_c()

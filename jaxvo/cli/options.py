@@ -56,21 +56,19 @@ def compilation_cache(f):
             click.echo(f"warning: {want}: cannot create the compilation cache folder; compiling without it",
                        err=True)
             want = None
-        ctx = click.get_current_context(silent=True)
-        if ctx is not None:
-            ctx.meta[_COLD] = (cold, want)
+        _COLD[:] = [(cold, want)]
         return f(*args, **kwargs)
     return wrapper
 
 
-_COLD = "jaxvo.compile_note"
+#: (the cache was empty or is off, its folder) of the command running, until compile_note says it
+_COLD: list = []
 
 
 def compile_note() -> None:
     """Say once, before a progress bar that would sit at 0 %, that this run compiles: the
     compilation cache (:func:`compilation_cache`) was empty or is off."""
-    ctx = click.get_current_context(silent=True)
-    cold, folder = ctx.meta.pop(_COLD, (False, None)) if ctx is not None else (False, None)
+    cold, folder = _COLD.pop() if _COLD else (False, None)
     if cold:
         where = (f"kept in {folder} for the next runs" if folder is not None
                  else "the compilation cache is off, so every run compiles")

@@ -110,13 +110,13 @@ def _written_by_jaxvo(seq_dir: Path) -> bool:
 
 def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", size: str = "320x240",
              sensor: bool = True, progress: bool = True, methods=DEMO_METHODS, force: bool = False,
-             check: Callable[[], None] = lambda: None) -> DemoResult:
+             check: Callable[[], None] = lambda: None, on_start: Callable[[], None] = lambda: None) -> DemoResult:
     """The work of ``jaxvo demo``: the sequence (reused under ``out_dir/sequence`` when it matches,
     replaced when jaxvo wrote it; a folder of other files there is refused unless ``force``),
     each method's run, table and figures, written into ``out_dir``; returns a :class:`DemoResult`.
     Every file is written under its ``.partial`` name and renamed when complete, so an
     interrupted demo leaves the previous complete files as they were. ``check()`` is called
-    between steps (it raises KeyboardInterrupt to stop)."""
+    between steps (it raises KeyboardInterrupt to stop), ``on_start()`` once the outputs are checked."""
     from jaxvo import viz
     from jaxvo.evaluation.metrics import ate, mask_scores, rpe
     from jaxvo.config import Config
@@ -135,6 +135,7 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     reuse = _sequence_matches(seq_dir, seq_name, frames, seed, cam, sensor)
     if not reuse:
         check_own_folder(seq_dir, _written_by_jaxvo, force)
+    on_start()
     total = (0 if reuse else frames) + len(methods) * (frames - 1)
     pbar = progress_bar(total=total, unit="step", desc="demo") if progress else None
     try:

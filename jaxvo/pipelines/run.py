@@ -704,7 +704,7 @@ def unusable_message(seq: TumSequence, res: RunResult, trajectory) -> Optional[s
         valid = depth[depth > 0]
         median = float(np.median(valid)) / seq.depth_scale if valid.size else float("nan")
         mp = seq.mask_paths[0] if getattr(seq, "mask_paths", None) else None
-        used = float(read_frame_mask(mp, depth.shape).mean()) if mp is not None else 1.0
+        used = float((read_frame_mask(mp, depth.shape) > 0).mean()) if mp is not None else 1.0
     except (DatasetError, ValueError, OSError):
         median, used = float("nan"), 1.0
     if used < 0.05:
