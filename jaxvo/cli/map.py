@@ -70,7 +70,7 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
 
     def on_start(seq, held):
         click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames ({held} held poses of {traj} left out), every {every}, "
-                   f"labels {labels if labels != 'estimate' else method + ' outliers'}, {seq.camera!r}", err=True)
+                   f"labels {(labels or 'none') if labels != 'estimate' else method + ' outliers'}, {seq.camera!r}", err=True)
         if not no_progress:
             pbar.append(progress_bar(total=0, unit="frame", desc="map"))
     if labels in ("estimate", "hindsight"):
