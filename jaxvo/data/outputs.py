@@ -16,6 +16,7 @@ Errors are :class:`jaxvo.data.errors.DatasetError` with one line naming the path
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import Callable, Iterable
 from jaxvo.data.errors import DatasetError
 
 __all__ = ["check_output", "check_output_folder", "partial_path", "finish", "write_error", "write_text",
-           "writing", "check_own_folder"]
+           "writing", "write_errors", "check_own_folder"]
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -99,6 +100,18 @@ def write_error(path, e: OSError) -> DatasetError:
     """The one-line error of a failed write of ``path`` (disk full, no permission, ...): the OS
     message alone names no file."""
     return DatasetError(f"{path}: cannot write ({e.strerror or e})")
+
+
+@contextlib.contextmanager
+def write_errors(path):
+    """Inside: an OSError that names no file (disk full while writing: ``[Errno 28] No space
+    left on device``) raises :func:`write_error` naming ``path`` (the output being written)."""
+    try:
+        yield
+    except OSError as e:
+        if isinstance(e, DatasetError) or e.filename:
+            raise
+        raise write_error(path, e) from None
 
 
 def writing(out, write: Callable[[Path], object], keep_suffix: bool = True) -> Path:
