@@ -42,7 +42,10 @@ exits with code 130. Outputs that would replace or land inside an input are refu
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
 inliers, too little depth or texture agreement, or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
-which includes JAX compilation) and frames/s after it. With groundtruth.txt it also prints
+which includes JAX compilation) and frames/s after it (the progress bar's fps). A run in which
+more than half of the pairs failed produced nothing usable (a wrong --depth-scale, masks that
+hide every pixel): after the summary one error line names the likely cause, the trajectory is
+kept, and the exit code is 2. With groundtruth.txt it also prints
 RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long enough
 (m/s, deg/s), and ATE (m, after alignment).
 
@@ -53,7 +56,9 @@ Several SEQUENCE_DIRs (or a folder holding sequence folders) are tracked togethe
 of the same image size run as one batch (their estimates jax.vmap'd in lockstep, spread over
 the available devices with jax.sharding; each keeps its own keyframes and segmentation and the
 key of SEED), so the batch compiles once. Each sequence's trajectory goes to
-OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line.
+OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line;
+a frame that does not read stops only its own sequence (its trajectory keeps its .partial name
+and its error line), and a sequence done is renamed at once.
 A batched pose equals the sequence's pose alone up to float rounding of the batched program
 (robust steps can turn that into ~1 mm, see jaxvo.tracking.batch).
 
@@ -87,8 +92,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
                    "faster, less accurate. [default: 0]")
 @click.option("--save-masks", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each pair's outlier mask (8-bit PNG, 255 = outlier: residuals defined but not an "
-                   "inlier) at full image size into this folder, named by the REFERENCE frame's timestamp "
-                   "(the mask lives on the reference image's pixels), e.g. 1311868164.363181.png.")
+                   "inlier, or dynamic for the segmentation) at full image size into this new folder, named "
+                   "by the reference and the current frame's timestamps (the mask lives on the reference "
+                   "image's pixels), e.g. 1311868164.363181-1311868164.395219.png, listed in masks.txt "
+                   "(reference timestamp, file, current timestamp), which jaxvo eval --masks-dir reads.")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Intrinsics preset (640x480). [default: the folder's calibration.txt (ETH3D), "
                    "camera_intrinsic.json (Open3D) or info.json (jaxvo), else from the folder name: "
