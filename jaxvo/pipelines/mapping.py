@@ -476,13 +476,14 @@ def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 
     from jaxvo.data.outputs import check_output, writing
     from jaxvo.data.ply import write_ply
     from jaxvo.data import DatasetError
-    from jaxvo.pipelines.run import load_sequence
+    from jaxvo.pipelines.run import check_camera_size, load_sequence
 
     kept = read_kept_poses(traj)
     check_output(out_ply, [sequence_dir, traj], force)
     if preview is not None:
         check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
+    check_camera_size(seq)
     if on_start is not None:
         on_start(seq, kept.held)
     res = build_map(seq, kept.stamps, kept.poses, every=every, voxel=voxel, max_depth=max_depth, labels=labels,

@@ -241,7 +241,11 @@ CLI_CASES = [
     ("map-seed-overflow", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--seed", str(2 ** 70)], "--seed"),
     ("map-outliers-and-hindsight", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--outliers", "--hindsight"],
      "exclude each other"),
+    ("map-camera-size-mismatch", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--camera", "bonn"],
+     "leave --camera out"),
     # --- masks
+    ("masks-camera-size-mismatch", lambda c: ["masks", c.seq, c.est, c.root / "mm", "--camera", "fr2"],
+     "leave --camera out"),
     ("masks-out-inside-seq", lambda c: ["masks", c.seq, c.est, c.seq / "mm"], "lies inside the input"),
     ("masks-out-nonempty", lambda c: ["masks", c.seq, c.est, c.write("o/x", "keep").parent], "not empty"),
     # --- gt
