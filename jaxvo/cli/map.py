@@ -30,7 +30,8 @@ paper's Fig. 4/7. A voxel grid (--voxel metres; 0 = off) averages position and
 colour per voxel, static and moving points apart.
 
 OUT.ply is a binary little-endian PLY (float x y z, uchar red green blue, and uchar moving:
-1 = moving, 0 = static, unless --no-labels) that Open3D, MeshLab and CloudCompare open. --preview writes a PNG rendering of it (perspective + top view).
+1 = moving, 0 = static, unless --no-labels) that Open3D, MeshLab and CloudCompare open.
+--preview writes a PNG rendering of it (perspective + top view).
 
 {CONVENTIONS}
 """)
@@ -69,8 +70,9 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
     pbar = []
 
     def on_start(seq, held):
+        said = (labels or "none") if labels != "estimate" else f"{method} outliers"
         click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames ({held} held poses of {traj} left out), every {every}, "
-                   f"labels {(labels or 'none') if labels != 'estimate' else method + ' outliers'}, {seq.camera!r}", err=True)
+                   f"labels {said}, {seq.camera!r}", err=True)
         if not no_progress:
             pbar.append(progress_bar(total=0, unit="frame", desc="map"))
     if labels in ("estimate", "hindsight"):

@@ -155,7 +155,8 @@ CLI_CASES = [
     ("run-out-under-a-file", lambda c: ["run", c.seq, "--out", c.est / "t.txt"], "is a file, not a folder"),
     ("run-save-masks-nonempty", lambda c: ["run", c.seq, "--save-masks", c.write("m/keep.png", "x").parent,
                                            "--out", c.root / "t"], "--save-masks"),
-    ("run-batch-out-dir-is-seq", lambda c: ["run", c.seq, _copy(c, "seq2"), "--out-dir", c.seq], "lies inside"),
+    ("run-batch-out-dir-is-seq", lambda c: ["run", c.seq, _copy(c, "seq2"), "--out-dir", c.seq],
+     "lies inside"),
     # --- run: a trajectory header with wrong types
     ("header-frames-str", lambda c: _header(c, '{"frames": "all"}'), 'header field "frames" must be an integer'),
     ("header-depth-scale-str", lambda c: _header(c, '{"depth_scale": "5000"}'), '"depth_scale" must be a number'),
