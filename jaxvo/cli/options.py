@@ -12,7 +12,7 @@ from jaxvo.camera import PRESETS
 from jaxvo.pipelines.demo import parse_size
 from jaxvo.runtime import cache
 
-__all__ = ["CONVENTIONS", "SEED", "POSITIVE", "FORCE", "compilation_cache", "device", "size_option",
+__all__ = ["CONVENTIONS", "SEED", "POSITIVE", "FORCE", "compilation_cache", "compile_note", "device", "size_option",
            "sequence_with_trajectory", "progress_cb"]
 
 CONVENTIONS = """\b
@@ -51,11 +51,28 @@ def compilation_cache(f):
     @functools.wraps(f)
     def wrapper(*args, cache_dir=None, no_cache=False, **kwargs):
         want = cache.cache_dir(cache_dir, no_cache)
+        cold = want is None or not Path(want).is_dir() or next(Path(want).iterdir(), None) is None
         if want is not None and cache.enable(want) is None:
             click.echo(f"warning: {want}: cannot create the compilation cache folder; compiling without it",
                        err=True)
+            want = None
+        _COLD[:] = [(cold, want)]
         return f(*args, **kwargs)
     return wrapper
+
+
+#: (the cache was empty or is off, its folder) of the command running, until compile_note says it
+_COLD: list = []
+
+
+def compile_note() -> None:
+    """Say once, before a progress bar that would sit at 0 %, that this run compiles: the
+    compilation cache (:func:`compilation_cache`) was empty or is off."""
+    cold, folder = _COLD.pop() if _COLD else (False, None)
+    if cold:
+        where = (f"kept in {folder} for the next runs" if folder is not None
+                 else "the compilation cache is off, so every run compiles")
+        click.echo(f"note: compiling the estimator for this machine first (tens of seconds; {where})", err=True)
 
 
 def device() -> str:

@@ -8,7 +8,7 @@ import click
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, progress_cb, size_option
 from jaxvo.cli.process import handle_errors
-from jaxvo.data.outputs import check_output_folder, finish, partial_path
+from jaxvo.data.outputs import check_output_folder, finish, partial_path, write_errors
 from jaxvo.pipelines.demo import progress_bar
 from jaxvo.synthetic import SEQUENCES
 
@@ -52,8 +52,9 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress, force):
     tmp = partial_path(out_dir, fresh=True)
     pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
-        generate(name, tmp, frames=frames, seed=seed, camera=cam, sensor=SensorModel() if sensor else None,
-                 progress=progress_cb(pbar) if pbar is not None else None)
+        with write_errors(tmp):
+            generate(name, tmp, frames=frames, seed=seed, camera=cam, sensor=SensorModel() if sensor else None,
+                     progress=progress_cb(pbar) if pbar is not None else None)
     finally:
         if pbar is not None:
             pbar.close()
