@@ -442,6 +442,13 @@ class Odometry:
             return pose
         anchors = [self._chain_pose(k) for k in nodes[:-1]] + [pose]
         refined = window.refine(anchors, graph_edges, policy.window)
+        # the frames after new start from the previous frame's pose relative to new's anchor: a
+        # correction near the per-frame step limits would make their estimates look like jumps and
+        # fail, so a window that disagrees that much with its chain is left as chained
+        moved = geometry.inverse(pose) @ refined[-1]
+        if (np.linalg.norm(moved[:3, 3]) > 0.5 * policy.max_step
+                or geometry.rotation_angle(moved[:3, :3]) > np.radians(0.5 * policy.max_step_deg)):
+            return pose
         for k, P in zip(nodes[:-1], refined[:-1]):
             if k != nodes[0]:
                 self._anchor[k] = P
