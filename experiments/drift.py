@@ -31,7 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-import common
+try:                    # run as a script (python experiments/drift.py)
+    import common
+except ImportError:     # imported as experiments.drift (experiments.diagnostics)
+    from experiments import common
 
 POLICIES = ("window", "single")
 SEGMENT = 100

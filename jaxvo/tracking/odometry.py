@@ -139,6 +139,7 @@ class Odometry:
         self._edges: dict = {}          # (a, b) keyframes -> (T_b_a float64, information (6, 6))
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
+        self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -169,7 +170,10 @@ class Odometry:
                 self._window = [0]
                 window.compile_ahead(self.policy.window)
             return None
-        T_world_ref = self._chain_pose(self._ref)
+        # the previous frame's pose relative to the reference, both from one chain: until a frame is
+        # posed from the reference's refined anchor, the previous poses rest on the anchor it had
+        # before the window moved it (_windowed_anchor)
+        T_world_ref = self._chained.get(self._ref, self._chain_pose(self._ref))
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
         trust = self.static_map.trust(tuple(frame.depth.shape))
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
@@ -199,6 +203,8 @@ class Odometry:
         self.valid.append(valid)
         self.inlier_ratio.append(ratio)
         self.references.append(used)
+        if valid:
+            self._chained.clear()
         if valid:
             self._rel[j] = T
             self._info[j] = est.information
@@ -452,6 +458,7 @@ class Odometry:
         for k, P in zip(nodes[:-1], refined[:-1]):
             if k != nodes[0]:
                 self._anchor[k] = P
+        self._chained = {new: pose}
         return refined[-1]
 
     def view_pose(self, view: int, new: int, T_world_new: np.ndarray) -> np.ndarray:
