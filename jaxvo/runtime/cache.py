@@ -90,4 +90,5 @@ def enable(path: Optional[os.PathLike]) -> Optional[Path]:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # -1: no minimum and no filesystem-dependent override by JAX
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
     return path
