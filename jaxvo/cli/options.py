@@ -51,7 +51,9 @@ def compilation_cache(f):
     @functools.wraps(f)
     def wrapper(*args, cache_dir=None, no_cache=False, **kwargs):
         want = cache.cache_dir(cache_dir, no_cache)
-        if want is not None and cache.enable(want) is None:
+        if want is None:
+            cache.disable()   # importing jaxvo switched it on
+        elif cache.enable(want) is None:
             click.echo(f"warning: {want}: cannot create the compilation cache folder; compiling without it",
                        err=True)
         return f(*args, **kwargs)
