@@ -238,12 +238,11 @@ class _CheckedCache:
     def _path(self):   # what JAX's reset_cache logs
         return self._dir
 
-    @staticmethod
-    def _file(key: str) -> Path:
+    def _file(self, key: str) -> Path:
+        """Where JAX's file cache keeps the entry ``key`` (call after :meth:`_cache`)."""
         from jax._src import lru_cache
 
-        import jax
-        return Path(jax.config.jax_compilation_cache_dir) / f"{key}{getattr(lru_cache, '_CACHE_SUFFIX', '-cache')}"
+        return Path(self._dir) / f"{key}{getattr(lru_cache, '_CACHE_SUFFIX', '-cache')}"
 
     def get(self, key: str):
         from jax._src import compilation_cache as cc
