@@ -261,12 +261,19 @@ class TrackConfig(NamedTuple):
     #: ``rescue_support`` of the valid ones, both in [0, 1] (0: off). docs/decisions/rescue.md.
     rescue: Annotated[float, real(0, 1)] = 0.9
     rescue_support: Annotated[float, real(0, 1)] = 0.03
+    #: Keyframes in the window, >= 1 (1: the single reference alone). A new reference at least
+    #: ``lag`` frames after the window's newest keyframe joins it, is estimated against the
+    #: others, and the window's poses are refined as a pose graph. docs/decisions/window.md.
+    window: Annotated[int, integer(1)] = 3
+    #: With window > 1: a frame whose estimate failed is estimated against the window's older
+    #: keyframes before its pose is held. docs/decisions/window.md.
+    recover: Annotated[bool, flag()] = True
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
         """The paper's chaining: every frame against the one before it, no segmentation."""
         return cls(**{"max_gap": 1, "lag": 0, "segment": False, "max_step": 0.1, "max_step_deg": 10.0, "coast": 0,
-                      "restart": 4, "catch_up": False, "retry": False,
+                      "restart": 4, "catch_up": False, "retry": False, "window": 1,
                       **changes})
 
     @classmethod
@@ -275,7 +282,7 @@ class TrackConfig(NamedTuple):
         no segmentation unless ``segment=True`` is passed."""
         return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
                       "max_step": 0.1, "max_step_deg": 10.0, "restart": 4 * max_gap, "catch_up": False,
-                      "retry": False, **changes})
+                      "retry": False, "window": 1, **changes})
 
     def to_json(self) -> str:
         """Every field as one line of JSON; :meth:`from_json` reads it back exactly."""

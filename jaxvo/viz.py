@@ -43,8 +43,15 @@ def _pos(p) -> np.ndarray:
     return p
 
 
-def _colour(name: str, k: int):
-    return METHOD_COLOURS.get(name, f"C{k % 10}")
+def _colours(names) -> dict:
+    """A distinct colour per name: METHOD_COLOURS' for the names it has, the other names the
+    first of matplotlib's ten colours that no name of this plot uses yet."""
+    out = {n: METHOD_COLOURS[n] for n in names if n in METHOD_COLOURS}
+    free = [c for c in (f"tab:{c}" for c in ("blue", "orange", "green", "red", "purple", "brown", "pink", "gray",
+                                              "olive", "cyan")) if c not in out.values()]
+    for k, n in enumerate(n for n in names if n not in out):
+        out[n] = free[k % len(free)] if free else f"C{k % 10}"
+    return out
 
 
 def top_view_axes(positions) -> Tuple[int, int]:
@@ -76,9 +83,10 @@ def plot_trajectories(trajectories: Mapping[str, np.ndarray], reference: Optiona
     fig = None
     if ax is None:
         fig, ax = plt.subplots(figsize=(5.5, 5))
-    for k, (name, p) in enumerate(trajs.items()):
+    colours = _colours(list(trajs))
+    for name, p in trajs.items():
         style = "--" if name == reference else "-"
-        c = _colour(name, k)
+        c = colours[name]
         ax.plot(p[:, i], p[:, j], style, color=c, lw=1.5, label=name)
         if len(p):
             ax.plot(p[0, i], p[0, j], "o", color=c, ms=4)
@@ -87,7 +95,9 @@ def plot_trajectories(trajectories: Mapping[str, np.ndarray], reference: Optiona
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=10)
+    if fig is not None:
+        fig.tight_layout()
     return fig if fig is not None else ax.figure
 
 
@@ -98,17 +108,20 @@ def plot_errors_over_time(times: Mapping[str, np.ndarray], errors: Mapping[str, 
     fig = None
     if ax is None:
         fig, ax = plt.subplots(figsize=(7, 3.5))
-    for k, name in enumerate(errors):
+    colours = _colours(list(errors))
+    for name in errors:
         t = np.asarray(times[name], dtype=np.float64)
         e = np.asarray(errors[name], dtype=np.float64)
-        ax.plot(t, e, "-", color=_colour(name, k), lw=1.3, label=name)
+        ax.plot(t, e, "-", color=colours[name], lw=1.3, label=name)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     if log:
         ax.set_yscale("log")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=10)
+    if fig is not None:
+        fig.tight_layout()
     return fig if fig is not None else ax.figure
 
 
@@ -179,9 +192,10 @@ def plot_overlay(intensity, inlier_mask, valid_mask=None, true_moving=None, titl
 
 
 def save_figure(fig, path, dpi: int = 120) -> Path:
-    """Save ``fig`` to ``path`` (format from the extension), close it, return the Path."""
+    """Save ``fig`` to ``path`` (format from the extension), close it, return the Path. The
+    saved area grows to hold every label (``bbox_inches="tight"``): none is clipped."""
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return path
 

@@ -55,3 +55,27 @@ def test_figures_are_written(tmp_path):
     assert viz.save_figure(f, tmp_path / "ov.png").stat().st_size > 1000
     viz.save_image(np.zeros((5, 5, 3), np.uint8), tmp_path / "img.png")
     assert (tmp_path / "img.png").is_file()
+
+
+@pytest.mark.parametrize("names", [["groundtruth", "classic", "huber", "ransac", "frame-to-frame"],
+                                   ["classic", "huber", "ransac", "a", "b", "c"], ["x", "y", "ransac", "z"]])
+def test_every_method_of_a_plot_gets_its_own_colour(names):
+    t = np.linspace(0, 1, 5)
+    f = viz.plot_errors_over_time({n: t for n in names}, {n: t * k for k, n in enumerate(names)})
+    colours = [line.get_color() for line in f.axes[0].get_lines()]
+    assert len(set(colours)) == len(names), colours
+    f = viz.plot_trajectories({n: np.stack([t, t * k, 0 * t], 1) for k, n in enumerate(names)})
+    colours = [line.get_color() for line in f.axes[0].get_lines()[::2]]     # curve, start marker
+    assert len(set(colours)) == len(names), colours
+
+
+def test_saved_figures_keep_their_axis_labels(tmp_path):
+    """A long title or label is not clipped: the saved area grows to hold it (wider than the figure)."""
+    import matplotlib.image as mpimg
+
+    t = np.linspace(0, 2, 20)
+    f = viz.plot_trajectories({"groundtruth": np.stack([t, 0 * t, t], 1)}, title="a title " * 12)
+    assert f.axes[0].get_ylabel() == "z [m]"
+    w = f.get_size_inches()[0] * 120
+    img = mpimg.imread(viz.save_figure(f, tmp_path / "t.png"))
+    assert img.shape[1] > w

@@ -9,7 +9,7 @@ import click
 from jaxvo.camera import PRESETS
 from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, progress_cb
 from jaxvo.cli.process import handle_errors
-from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path
+from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path, write_errors
 from jaxvo.data import DatasetError
 from jaxvo.pipelines.demo import progress_bar
 
@@ -52,9 +52,10 @@ def augment_cmd(real_seq, out_dir, persons, coverage, seed, max_frames, camera_p
     check_output(tmp, [real_seq], force)
     pbar = None if no_progress else progress_bar(total=max_frames or 0, unit="frame", desc="augment")
     try:
-        augment(real_seq, tmp, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
-                camera=PRESETS[camera_preset] if camera_preset else None,
-                progress=progress_cb(pbar) if pbar is not None else None)
+        with write_errors(tmp):
+            augment(real_seq, tmp, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
+                    camera=PRESETS[camera_preset] if camera_preset else None,
+                    progress=progress_cb(pbar) if pbar is not None else None)
     finally:
         if pbar is not None:
             pbar.close()

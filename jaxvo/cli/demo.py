@@ -5,8 +5,8 @@ from pathlib import Path
 
 import click
 
-from jaxvo.cli.options import CONVENTIONS, SEED, compilation_cache, size_option
-from jaxvo.cli.process import CtrlC, handle_errors
+from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, compilation_cache, compile_note, size_option
+from jaxvo.cli.process import CtrlC, exit_now, handle_errors, ignore_ctrl_c
 from jaxvo.pipelines.demo import run_demo
 
 __all__ = ["demo_cmd"]
@@ -24,7 +24,8 @@ ATE (mm, after rigid alignment), frames/s after compilation, mean inlier ratio, 
 precision / recall of each estimator's outlier mask against the true moving pixels (on the
 reference frame's pixels where the residuals are defined).
 
-Writes into --out: sequence/ (the generated sequence, reused when it matches), traj_<method>.txt,
+Writes into --out: sequence/ (the generated sequence, reused when it matches; a sequence/
+folder jaxvo did not write is refused unless --force), traj_<method>.txt,
 results.json, results.md, trajectories.png (top view), translational_error.png (error per
 frame over time), inliers_outliers.png (one dynamic frame: inliers blue, outliers green, the
 true moving pixels outlined red; like the paper's Fig. 4).
@@ -46,11 +47,18 @@ included, takes about a minute or two on two CPU cores; --size 640x480 is the pa
               help="Image size WIDTHxHEIGHT.")
 @click.option("--sensor/--no-sensor", default=True, show_default=True, help="Kinect-like sensor effects.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@FORCE
 @compilation_cache
 @handle_errors
-def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress):
-    result = CtrlC().run(lambda: run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size,
-                                          sensor=sensor, progress=not no_progress),
-                         lambda: click.echo("\ninterrupted (Ctrl-C)", err=True))
+def demo_cmd(out_dir, frames, seed, seq_name, size, sensor, no_progress, force):
+    ctrl_c = CtrlC()
+    result = ctrl_c.run(lambda: run_demo(out_dir, frames=frames, seed=seed, seq_name=seq_name, size=size,
+                                         sensor=sensor, progress=not no_progress, force=force, check=ctrl_c.check,
+                                         on_start=compile_note),
+                        lambda: click.echo("\ninterrupted (Ctrl-C)", err=True))
+    if ctrl_c.interrupted:   # pressed after the last step: the files are complete, the exit code says so
+        ignore_ctrl_c()
+        click.echo("interrupted (Ctrl-C); the finished files are complete", err=True)
+        exit_now(130)
     click.echo(result.table)
     click.echo(f"\nfigures and results in {out_dir}/ ({result.wall_s:.0f} s)")

@@ -8,7 +8,7 @@ import click
 
 from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE
 from jaxvo.cli.process import handle_errors
-from jaxvo.data.outputs import check_output, finish, partial_path
+from jaxvo.data.outputs import check_output, write_text, writing
 from jaxvo.data import DatasetError
 from jaxvo.evaluation.scoring import evaluate
 from jaxvo.pipelines.demo import fmt
@@ -92,12 +92,7 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
              "ate": a.to_dict(per_frame=per_pair), "masks": m.to_dict() if m is not None else None}
         if m is not None:
             d["mask_frames"] = res.mask_frames
-        tmp = partial_path(json_file)
-        try:
-            tmp.write_text(json.dumps(d, indent=1) + "\n")
-        except OSError as e:
-            raise DatasetError(f"{json_file}: cannot write JSON ({e.strerror or e})") from None
-        finish(tmp, json_file)
+        write_text(json_file, json.dumps(d, indent=1) + "\n")
     if plot_file is not None:
         _eval_plot(res, plot_file, delta, delta_unit)
 
@@ -114,9 +109,7 @@ def _eval_plot(res, plot_file, delta, delta_unit):
     fig = viz.plot_eval(gP[keep, :3, 3], a.aligned[:, :3, 3], r.stamps_j - t0, r.trans / r.delta,
                         a.stamps - t0, a.errors, rpe_label=f"RPE trans [m/{u}] (delta {delta:g} {u})",
                         title=f"{Path(str(res.gt_file)).parent.name}")
-    tmp = partial_path(plot_file, keep_suffix=True)
     try:
-        viz.save_figure(fig, tmp)
-    except (OSError, ValueError) as e:
+        writing(plot_file, lambda p: viz.save_figure(fig, p))
+    except ValueError as e:
         raise DatasetError(f"{plot_file}: cannot write figure ({one_line(e)})") from None
-    finish(tmp, plot_file)

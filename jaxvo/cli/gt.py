@@ -6,9 +6,10 @@ from pathlib import Path
 import click
 
 from jaxvo.camera import DEFAULT
-from jaxvo.cli.options import CONVENTIONS
+from jaxvo.cli.options import CONVENTIONS, FORCE
 from jaxvo.cli.process import handle_errors
 from jaxvo.data import DatasetError
+from jaxvo.data.outputs import check_output
 
 __all__ = ["gt_cmd"]
 
@@ -33,12 +34,15 @@ poses first, as jaxvo eval does. Then evo gives jaxvo eval's numbers:
               help="TUM trajectory file to write (camera poses T_world_cam).")
 @click.option("--bonn/--no-bonn", default=None,
               help="Force / forbid the Bonn marker-to-camera conversion. [default: by folder name]")
+@FORCE
 @handle_errors
-def gt_cmd(sequence_dir, out, bonn):
+def gt_cmd(sequence_dir, out, bonn, force):
     from jaxvo.data import open_sequence
     from jaxvo.data.trajectory import HEADER, write_tum_trajectory
 
+    check_output(out, [sequence_dir], force, "--out")
     seq = open_sequence(sequence_dir, bonn=bonn, camera=DEFAULT)  # intrinsics are not needed here
+    check_output(out, [sequence_dir, seq.groundtruth_path], force, "--out")
     gt = seq.groundtruth
     if gt is None:
         raise DatasetError(f"{seq.groundtruth_path}: file not found (the sequence folder has no ground truth)")

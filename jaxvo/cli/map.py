@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, sequence_with_trajectory
+from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, compilation_cache, compile_note, sequence_with_trajectory
 from jaxvo.cli.process import CtrlC, Fail, handle_errors
 from jaxvo.pipelines.demo import fmt, progress_bar
 from jaxvo.pipelines.mapping import map_sequence
@@ -22,14 +22,16 @@ frames within --max-dt seconds (frames without a pose are skipped, and so are th
 run' marked held: its estimate failed and the previous pose was kept). Every N-th matched frame
 (--every), the pixels with valid depth up to --max-depth metres are back-projected and moved
 into the world with the trajectory's pose. Static points keep their RGB colour; moving points
-(outliers of the estimator on the pair (frame, next frame): residuals defined but not an
-inlier; with --hindsight, the masks of 'jaxvo masks', decided against earlier and later
-frames; or, with --use-masks, the pixels of the sequence's masks/) are painted green, as the
-outliers of the paper's Fig. 4/7. A voxel grid (--voxel metres; 0 = off) averages position and
+(by default the segmentation of 'jaxvo masks', decided against earlier and later frames at
+the trajectory's poses, which marks people whole; with --outliers, the outliers of the
+estimator on the pair (frame, next frame): residuals defined but not an inlier; with
+--use-masks, the pixels of the sequence's masks/) are painted green, as the outliers of the
+paper's Fig. 4/7. A voxel grid (--voxel metres; 0 = off) averages position and
 colour per voxel, static and moving points apart.
 
-OUT.ply is a binary little-endian PLY (float x y z, uchar red green blue) that Open3D, MeshLab
-and CloudCompare open. --preview writes a PNG rendering of it (perspective + top view).
+OUT.ply is a binary little-endian PLY (float x y z, uchar red green blue, and uchar moving:
+1 = moving, 0 = static, unless --no-labels) that Open3D, MeshLab and CloudCompare open.
+--preview writes a PNG rendering of it (perspective + top view).
 
 {CONVENTIONS}
 """)
@@ -41,7 +43,7 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
 @click.option("--voxel", type=click.FloatRange(min=0), default=0.01, show_default=True,
               help="Voxel size in metres for downsampling (0 = keep every point).")
 @click.option("--method", type=click.Choice(["classic", "huber", "ransac"]), default="ransac", show_default=True,
-              help="Estimator whose outlier mask labels the moving points.")
+              help="Estimator of --outliers (and whose thresholds the segmentation uses).")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Use at most N frames of the sequence.")
 @click.option("--max-depth", type=click.FloatRange(min=0, min_open=True), default=4.0, show_default=True,
               help="Ignore depth beyond this (metres).")
@@ -51,24 +53,30 @@ and CloudCompare open. --preview writes a PNG rendering of it (perspective + top
               help="Label moving points from the sequence's masks/ (masks.txt) instead of running the estimator.")
 @click.option("--hindsight", is_flag=True,
               help="Label moving points with the masks of 'jaxvo masks' (each frame against earlier and later "
-                   "frames at the trajectory's poses) instead of one estimate's outliers.")
+                   "frames at the trajectory's poses). [the default]")
+@click.option("--outliers", is_flag=True,
+              help="Label moving points with the outliers of one estimate (frame, next frame) instead.")
 @click.option("--no-labels", is_flag=True, help="No moving/static labels: every point in its RGB colour.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the jax.random key (RANSAC sampling).")
 @sequence_with_trajectory
 @FORCE
+@compilation_cache
 @handle_errors
 def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_depth, preview, use_masks,
-            hindsight, no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
-    if use_masks + hindsight + no_labels > 1:
-        raise Fail("--use-masks, --hindsight and --no-labels exclude each other")
-    labels = None if no_labels else ("masks" if use_masks else "hindsight" if hindsight else "estimate")
+            hindsight, outliers, no_labels, seed, camera_preset, depth_scale, max_dt, no_progress, force):
+    if use_masks + hindsight + outliers + no_labels > 1:
+        raise Fail("--use-masks, --hindsight, --outliers and --no-labels exclude each other")
+    labels = None if no_labels else ("masks" if use_masks else "estimate" if outliers else "hindsight")
     pbar = []
 
     def on_start(seq, held):
+        said = (labels or "none") if labels != "estimate" else f"{method} outliers"
         click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames ({held} held poses of {traj} left out), every {every}, "
-                   f"labels {labels if labels != 'estimate' else method}, {seq.camera!r}", err=True)
+                   f"labels {said}, {seq.camera!r}", err=True)
         if not no_progress:
             pbar.append(progress_bar(total=0, unit="frame", desc="map"))
+    if labels in ("estimate", "hindsight"):
+        compile_note()
     ctrl_c = CtrlC()
 
     def progress(done, total):
@@ -90,7 +98,8 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
              f"{max_dt} s)",
              f"points        {len(cloud)} after a {voxel:g} m voxel grid ({res.raw_points} back-projected), "
              f"{int(cloud.moving.sum())} moving ({100 * float(cloud.moving.mean()):.1f} %)",
-             f"map           {out_ply} (binary PLY, static points in RGB, moving points green)"]
+             f"map           {out_ply} (binary PLY, static points in RGB, moving points green"
+             + (", property 'moving')" if labels else ")")]
     if labels == "estimate":
         lines.insert(1, f"inlier ratio  {fmt(float(np.nanmean(res.inlier_ratio)), 3)} (mean, {method})")
     if preview is not None:

@@ -6,8 +6,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, sequence_with_trajectory
-from jaxvo.cli.process import Fail, handle_errors
+from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, compilation_cache, compile_note, sequence_with_trajectory
+from jaxvo.cli.process import CtrlC, Fail, handle_errors
 from jaxvo.pipelines.demo import progress_bar
 from jaxvo.pipelines.masks import write_hindsight_masks
 from jaxvo.tracking.hindsight import OFFSETS as HINDSIGHT_OFFSETS, HindsightParams
@@ -54,6 +54,7 @@ written as they are decided, into OUT_DIR.partial, which becomes OUT_DIR at the 
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Use at most N frames of the sequence.")
 @sequence_with_trajectory
 @FORCE
+@compilation_cache
 @handle_errors
 def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_slope, thresh_lum, thresh_depth,
               max_frames, camera_preset, depth_scale, max_dt, no_progress, force):
@@ -76,11 +77,18 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
                    f"{','.join(str(o) for o in offset_list)}, {seq.camera!r}", err=True)
         if not no_progress:
             pbar.append(progress_bar(total=posed, unit="frame", desc="masks"))
+    compile_note()
+    ctrl_c = CtrlC()
+
+    def on_mask(i):
+        ctrl_c.check()
+        if pbar:
+            pbar[0].update(1)
     try:
-        run = write_hindsight_masks(sequence_dir, traj, out_dir, offsets=offset_list, params=params, config=config,
-                                    max_frames=max_frames, camera_preset=camera_preset, depth_scale=depth_scale,
-                                    max_dt=max_dt, force=force, on_start=on_start,
-                                    on_mask=lambda i: pbar[0].update(1) if pbar else None)
+        run = ctrl_c.run(lambda: write_hindsight_masks(
+            sequence_dir, traj, out_dir, offsets=offset_list, params=params, config=config, max_frames=max_frames,
+            camera_preset=camera_preset, depth_scale=depth_scale, max_dt=max_dt, force=force, on_start=on_start,
+            on_mask=on_mask))
     finally:
         if pbar:
             pbar[0].close()

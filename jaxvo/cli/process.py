@@ -139,6 +139,11 @@ class CtrlC:
         if self.flag.is_set():
             raise KeyboardInterrupt
 
+    @property
+    def interrupted(self) -> bool:
+        """Ctrl-C was pressed (also when the job finished before it noticed)."""
+        return self.flag.is_set()
+
     def run(self, fn: Callable, on_abandon: Callable[[], None] = lambda: None):
         if threading.current_thread() is not threading.main_thread():
             return fn()

@@ -1,13 +1,14 @@
 """``jaxvo run``: track one sequence, or several as batches, and write their trajectories."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
 import numpy as np
 
 from jaxvo.camera import PRESETS
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, device
+from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, compile_note, device
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
@@ -41,7 +42,10 @@ exits with code 130. Outputs that would replace or land inside an input are refu
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
 inliers, too little depth or texture agreement, or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
-which includes JAX compilation) and frames/s after it. With groundtruth.txt it also prints
+which includes JAX compilation) and frames/s after it (the progress bar's fps). A run in which
+more than half of the pairs failed produced nothing usable (a wrong --depth-scale, masks that
+hide every pixel): after the summary one error line names the likely cause, the trajectory is
+kept, and the exit code is 2. With groundtruth.txt it also prints
 RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long enough
 (m/s, deg/s), and ATE (m, after alignment).
 
@@ -52,7 +56,9 @@ Several SEQUENCE_DIRs (or a folder holding sequence folders) are tracked togethe
 of the same image size run as one batch (their estimates jax.vmap'd in lockstep, spread over
 the available devices with jax.sharding; each keeps its own keyframes and segmentation and the
 key of SEED), so the batch compiles once. Each sequence's trajectory goes to
-OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line.
+OUT_DIR/<sequence name>.txt (--out-dir, default the current folder) and gets one summary line;
+a frame that does not read stops only its own sequence (its trajectory keeps its .partial name
+and its error line), and a sequence done is renamed at once.
 A batched pose equals the sequence's pose alone up to float rounding of the batched program
 (robust steps can turn that into ~1 mm, see jaxvo.tracking.batch).
 
@@ -86,8 +92,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
                    "faster, less accurate. [default: 0]")
 @click.option("--save-masks", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each pair's outlier mask (8-bit PNG, 255 = outlier: residuals defined but not an "
-                   "inlier) at full image size into this folder, named by the REFERENCE frame's timestamp "
-                   "(the mask lives on the reference image's pixels), e.g. 1311868164.363181.png.")
+                   "inlier, or dynamic for the segmentation) at full image size into this new folder, named "
+                   "by the reference and the current frame's timestamps (the mask lives on the reference "
+                   "image's pixels), e.g. 1311868164.363181-1311868164.395219.png, listed in masks.txt "
+                   "(reference timestamp, file, current timestamp), which jaxvo eval --masks-dir reads.")
 @click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Intrinsics preset (640x480). [default: the folder's calibration.txt (ETH3D), "
                    "camera_intrinsic.json (Open3D) or info.json (jaxvo), else from the folder name: "
@@ -119,6 +127,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
               help="Keep a static/dynamic segmentation across frames (free-space votes of earlier and "
                    "later frames, carried from reference to reference) and trust only static pixels "
                    "[default: on, off with --frame-to-frame].")
+@click.option("--window", type=click.IntRange(min=1), default=None,
+              help="Keyframes in the window: each new keyframe is estimated against the others and their "
+                   "poses are refined together; a frame that fails against its reference is tried against "
+                   "them [default: 3; 1 = the single reference; 1 with --frame-to-frame].")
 @click.option("--frame-to-frame", is_flag=True,
               help="The paper's chaining: every frame against the previous one, no segmentation. With "
                    "--config '{\"prior_candidate\": \"raw\", ...}' or --paper, the published algorithm.")
@@ -131,7 +143,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @handle_errors
 def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
-            keyframe_lag, segment, frame_to_frame, paper, no_progress, force):
+            keyframe_lag, segment, window, frame_to_frame, paper, no_progress, force):
     dirs = expand_sequences(sequence_dirs)
     ctx = click.get_current_context()
 
@@ -146,7 +158,8 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                                    if name == "--out" else f"{name} is for one sequence, got {len(dirs)} sequences")
     setup = setup_run(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                       finest_level=finest_level, seed=given("seed", seed), keyframe_gap=keyframe_gap,
-                      keyframe_lag=keyframe_lag, segment=segment, frame_to_frame=frame_to_frame, paper=paper,
+                      keyframe_lag=keyframe_lag, segment=segment, window=window, frame_to_frame=frame_to_frame,
+                      paper=paper,
                       camera_preset=camera_preset, fx=fx, fy=fy, cx=cx, cy=cy, depth_scale=depth_scale,
                       max_dt=given("max_dt", max_dt), start=given("start", start), max_frames=max_frames,
                       mask_dir=mask_dir, from_header=len(dirs) == 1)
@@ -156,12 +169,14 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                    "(README: Reproducible runs)", err=True)
     plan = plan_run(dirs, setup, out=out, out_dir=out_dir, save_masks=save_masks, config_file=config_file,
                     force=force)
+    _print_provenance(config_file, setup, plan)
     if len(dirs) > 1:
         _run_many(plan, no_progress)
         return
     seq, config = plan.sequences[0], setup.config
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
                f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}, device {device()}", err=True)
+    compile_note()
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     # the trajectory grows, flushed line by line, under a .partial name; it gets its name when complete
     partial = partial_path(plan.outputs[0])
@@ -184,8 +199,33 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
         if pbar is not None:
             pbar.close()
     _print_run_summary(report.runs[0])
-    if report.interrupted:
+    _leave(report, ctrl_c)
+
+
+def _leave(report, ctrl_c):
+    """Exit 130 after Ctrl-C (also one pressed after the last pair); else one ``error:`` line per
+    sequence that is not a success (a frame that did not read, nothing usable) and exit 2."""
+    if report.interrupted or ctrl_c.interrupted:
         exit_now(130)
+    for problem in report.problems:
+        click.echo(f"error: {problem}", err=True)
+    if report.problems:
+        sys.exit(2)
+
+
+def _print_provenance(config_file, setup, plan):
+    """With --config: where each setting came from (one line), the settings the file lacked
+    (one note), and a note when its header was written for another sequence."""
+    if not setup.sources:
+        return
+    click.echo(f"settings      {'; '.join(setup.sources)}", err=True)
+    if setup.missing:
+        click.echo(f"note: {config_file} lacks {', '.join(setup.missing)} (written by an older jaxvo?): filled "
+                   f"with today's defaults, so the rerun may differ from the recorded one", err=True)
+    recorded = setup.header_sequence
+    if recorded is not None and len(plan.sequences) == 1 and Path(str(recorded)).name != plan.sequences[0].name:
+        click.echo(f"note: {config_file} was written for {recorded}; its settings (intrinsics, depth scale, "
+                   f"frames) are applied to {plan.sequences[0].path} (override them with options)", err=True)
 
 
 def _run_many(plan, no_progress):
@@ -195,6 +235,7 @@ def _run_many(plan, no_progress):
     seqs, config = plan.sequences, plan.setup.config
     click.echo(f"jaxvo run: {len(seqs)} sequences in {len(plan.batches)} batch(es) by image size, method "
                f"{config.method}, {len(jax.devices())} device(s) ({device()}, ...)", err=True)
+    compile_note()
     pbar = None if no_progress else progress_bar(total=sum(len(s) - 1 for s in seqs), unit="frame",
                                                  desc=config.method)
     ctrl_c = CtrlC()
@@ -211,6 +252,11 @@ def _run_many(plan, no_progress):
     lines = []
     for run in report.runs:
         r = run.result
+        if r is None:
+            why = "its batch failed, see its error line" if run.problem else "interrupted before its batch"
+            kept = run.trajectory if run.trajectory.exists() else "-"
+            lines.append(f"{run.sequence.name}: not tracked ({why}), trajectory {kept}")
+            continue
         line = (f"{run.sequence.name}: {len(r.stamps)} frames, failures {r.failures}, inlier ratio "
                 f"{fmt(float(np.mean(r.inlier_ratio)) if r.pairs else float('nan'), 3)}, compile "
                 f"{fmt(r.compile_s, 1)} s, {fmt(r.fps, 2)} frames/s (batch), trajectory {run.trajectory}")
@@ -220,10 +266,13 @@ def _run_many(plan, no_progress):
                 line += f", RPE 1 s {errs.rpe_1s.trans_drift.rmse:.4f} m/s"
             if errs.ate is not None:
                 line += f", ATE {errs.ate.rmse:.4f} m"
+        if r.error is not None:
+            line += " (stopped early: see its error line)"
+        elif r.interrupted:
+            line += " (interrupted)"
         lines.append(line)
     click.echo("\n".join(lines))
-    if report.interrupted:
-        exit_now(130)
+    _leave(report, ctrl_c)
 
 
 def _print_run_summary(run):

@@ -8,8 +8,9 @@ import click
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.cli.options import CONVENTIONS, FORCE, SEED, progress_cb, size_option
 from jaxvo.cli.process import handle_errors
-from jaxvo.data.outputs import check_output_folder, finish, partial_path
+from jaxvo.data.outputs import check_output_folder, finish, partial_path, write_errors
 from jaxvo.pipelines.demo import progress_bar
+from jaxvo.synthetic import SEQUENCES
 
 __all__ = ["synth_cmd"]
 
@@ -19,7 +20,9 @@ __all__ = ["synth_cmd"]
 NAME picks the camera / person motion (the paper's Table II): seq0 hand-held camera, static
 scene; seq1 fixed camera, one person walking; seq2 camera panning at 2 deg/s on a pan-tilt
 head, one person; seq3 as seq2 with two persons; handheld-fast hand-held camera with a
-person moving fast and close. Frames at 30 Hz, deterministic from --seed.
+person moving fast and close; crowd (for long runs) hand-held camera panning slowly, three persons
+walking on their own paths, at times covering half the image. Frames at 30 Hz, deterministic
+from --seed.
 
 OUT_DIR gets the TUM layout (rgb/, depth/ 16-bit metres x 5000, rgb.txt, depth.txt,
 groundtruth.txt as T_world_cam) plus masks/ (8-bit, 255 = pixel on a moving object),
@@ -28,7 +31,7 @@ work on it unchanged.
 
 {CONVENTIONS}
 """)
-@click.argument("name", type=click.Choice(["seq0", "seq1", "seq2", "seq3", "handheld-fast"]))
+@click.argument("name", type=click.Choice(list(SEQUENCES)))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--frames", type=click.IntRange(min=2), default=300, show_default=True, help="Number of frames (30 Hz).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the scene, textures and motions.")
@@ -49,8 +52,9 @@ def synth_cmd(name, out_dir, frames, seed, size, sensor, no_progress, force):
     tmp = partial_path(out_dir, fresh=True)
     pbar = None if no_progress else progress_bar(total=frames, unit="frame", desc=f"render {name}")
     try:
-        generate(name, tmp, frames=frames, seed=seed, camera=cam, sensor=SensorModel() if sensor else None,
-                 progress=progress_cb(pbar) if pbar is not None else None)
+        with write_errors(tmp):
+            generate(name, tmp, frames=frames, seed=seed, camera=cam, sensor=SensorModel() if sensor else None,
+                     progress=progress_cb(pbar) if pbar is not None else None)
     finally:
         if pbar is not None:
             pbar.close()

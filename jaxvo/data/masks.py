@@ -41,7 +41,14 @@ def _imread(p: Path, flags: int, why: str) -> np.ndarray:
 # ----------------------------------------------------------------------------- moving-pixel masks
 
 def read_mask_dir(folder: Path):
-    """(stamps, paths) of ``<timestamp>.png`` files in a folder (sorted by time)."""
+    """(stamps, paths) of ``<timestamp>.png`` files in a folder (sorted by time), or of the masks
+    its index ``masks.txt`` lists (``timestamp file ...`` per line, a timestamp may repeat: the
+    per-pair masks of ``jaxvo run --save-masks``, each on its reference frame's pixels)."""
+    index = Path(folder) / "masks.txt"
+    if index.is_file():
+        rows = [ln.split() for ln in index.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+        items = sorted((float(r[0]), Path(folder) / r[1]) for r in rows if len(r) >= 2)
+        return np.asarray([t for t, _ in items], np.float64), [p for _, p in items]
     items = []
     for p in folder.glob("*.png"):
         try:

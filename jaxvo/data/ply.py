@@ -7,22 +7,24 @@ trajectory, T_world_cam); colours (N, 3) uint8 RGB. The files open in Open3D
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["write_ply", "read_ply"]
+__all__ = ["write_ply", "read_ply", "read_ply_vertices"]
 
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
               "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
               "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 
 
-def write_ply(path, points, colors=None) -> Path:
-    """Write a binary little-endian PLY point cloud: float x, y, z and (if given) uchar red, green, blue.
+def write_ply(path, points, colors=None, moving=None) -> Path:
+    """Write a binary little-endian PLY point cloud: float x, y, z, (if given) uchar red, green,
+    blue and (if given) uchar moving (1 = a point on something that moves, 0 = static).
 
     points: (N, 3) float metres. colors: (N, 3) uint8 RGB (floats in [0, 1] are scaled by 255).
-    Opens in Open3D (``o3d.io.read_point_cloud``), MeshLab and CloudCompare. Returns the Path.
+    moving: (N,) bool. Opens in Open3D (``o3d.io.read_point_cloud``), MeshLab and CloudCompare
+    (which shows ``moving`` as a scalar field). Returns the Path.
     """
     path = Path(path)
     P = np.asarray(points, np.float32).reshape(-1, 3)
@@ -36,14 +38,23 @@ def write_ply(path, points, colors=None) -> Path:
             C = np.clip(np.round(C * 255.0), 0, 255)
         C = C.astype(np.uint8)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if moving is not None:
+        moving = np.asarray(moving, bool).reshape(-1)
+        if moving.shape != (len(P),):
+            raise ValueError(f"moving must be (N,) like points {P.shape}, got {moving.shape}")
+        fields += [("moving", "u1")]
     rec = np.empty(len(P), dtype=fields)
     rec["x"], rec["y"], rec["z"] = P[:, 0], P[:, 1], P[:, 2]
     if C is not None:
         rec["red"], rec["green"], rec["blue"] = C[:, 0], C[:, 1], C[:, 2]
+    if moving is not None:
+        rec["moving"] = moving
     header = ["ply", "format binary_little_endian 1.0", "comment written by jaxvo",
               f"element vertex {len(P)}", "property float x", "property float y", "property float z"]
     if C is not None:
         header += ["property uchar red", "property uchar green", "property uchar blue"]
+    if moving is not None:
+        header += ["property uchar moving"]
     header += ["end_header"]
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
@@ -58,6 +69,20 @@ def read_ply(path) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     Returns ``(points (N, 3) float64, colors (N, 3) uint8 or None)``. Other elements after the
     vertices (faces) are ignored. Raises ValueError naming the file for malformed input.
     """
+    rec = read_ply_vertices(path)
+    P = np.stack([np.asarray(rec[c], np.float64) for c in "xyz"], 1)
+    C = None
+    if all(c in rec for c in ("red", "green", "blue")):
+        C = np.stack([np.asarray(rec[c]) for c in ("red", "green", "blue")], 1)
+        if np.issubdtype(C.dtype, np.floating) and C.max(initial=0) <= 1.0:
+            C = C * 255.0
+        C = np.clip(np.round(C), 0, 255).astype(np.uint8)
+    return P, C
+
+
+def read_ply_vertices(path) -> Dict[str, np.ndarray]:
+    """Every scalar vertex property of a PLY file by name, (N,) each (e.g. x, y, z, red, green,
+    blue and jaxvo's ``moving``). Raises ValueError naming the file for malformed input."""
     path = Path(path)
     with open(path, "rb") as f:
         data = f.read()
@@ -106,11 +131,4 @@ def read_ply(path) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     for c in "xyz":
         if c not in names:
             raise ValueError(f"{path}: vertex property {c!r} missing")
-    P = np.stack([np.asarray(rec[c], np.float64) for c in "xyz"], 1)
-    C = None
-    if all(c in names for c in ("red", "green", "blue")):
-        C = np.stack([np.asarray(rec[c]) for c in ("red", "green", "blue")], 1)
-        if np.issubdtype(C.dtype, np.floating) and C.max(initial=0) <= 1.0:
-            C = C * 255.0
-        C = np.clip(np.round(C), 0, 255).astype(np.uint8)
-    return P, C
+    return {name: np.asarray(rec[name]) for name in names}

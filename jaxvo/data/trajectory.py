@@ -19,6 +19,7 @@ import numpy as np
 
 from jaxvo import geometry
 from jaxvo.data.errors import DatasetError
+from jaxvo.data.outputs import write_error, writing
 from jaxvo.data.textfiles import read_pose_file
 
 __all__ = ["chain", "read_tum_trajectory", "write_tum_trajectory", "format_pose_line",
@@ -94,19 +95,17 @@ def read_held(path) -> np.ndarray:
 
 
 def write_tum_trajectory(path, stamps, poses, header: str = HEADER) -> None:
-    """Write (N,) stamps and (N, 4, 4) T_world_cam poses as a TUM trajectory file (overwrites)."""
+    """Write (N,) stamps and (N, 4, 4) T_world_cam poses as a TUM trajectory file: under its
+    ``.partial`` name, renamed to ``path`` when complete (replacing it). An OS error (disk full)
+    raises DatasetError naming ``path``."""
     stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(poses, dtype=np.float64)
     if poses.shape != (stamps.size, 4, 4):
         raise ValueError(f"need (N,) stamps and (N, 4, 4) poses, got {stamps.shape} and {poses.shape}")
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as fh:
-        if header:
-            fh.write(header.rstrip("\n") + "\n")
-        for s, T in zip(stamps, poses):
-            fh.write(format_pose_line(s, T) + "\n")
-    os.replace(tmp, path)
+    text = "".join(format_pose_line(s, T) + "\n" for s, T in zip(stamps, poses))
+    if header:
+        text = header.rstrip("\n") + "\n" + text
+    writing(path, lambda p: Path(p).write_text(text), keep_suffix=False)
 
 
 class TrajectoryWriter:
@@ -158,19 +157,27 @@ class TrajectoryWriter:
 
     def close(self) -> None:
         if self._fh is not None:
+            fh, self._fh = self._fh, None
             try:
-                self._fh.flush()
+                fh.flush()
+            except OSError:
+                pass                       # reported by the write that failed
             finally:
-                self._fh.close()
-                self._fh = None
+                try:
+                    fh.close()
+                except OSError:
+                    pass
 
     def _write_line(self, line: str) -> None:
         if self._fh is None:
             raise RuntimeError("TrajectoryWriter is not open (use it as a context manager)")
-        self._fh.write(line + "\n")
-        self._fh.flush()
-        if self.fsync:
-            os.fsync(self._fh.fileno())
+        try:
+            self._fh.write(line + "\n")
+            self._fh.flush()
+            if self.fsync:
+                os.fsync(self._fh.fileno())
+        except OSError as e:
+            raise write_error(self.path, e) from None
 
     def write(self, stamp: float, T_world_cam, held: bool = False) -> np.ndarray:
         """Write one absolute pose (4x4 T_world_cam) at ``stamp`` seconds; returns it. ``held``: the

@@ -205,6 +205,19 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
                     0.5 * M[6, 6] * total)
 
 
+def least_squares(residual_fun, params, maxiter: int, xtol: float = 1e-6, damping: float = 1e-6):
+    """Minimise 0.5 * ||residual_fun(params)||^2 over a flat parameter vector with the same jaxopt
+    Levenberg-Marquardt (Cholesky normal equations, autodiff Jacobian) and stopping rule as
+    :func:`solve_pose` (:func:`_run_lm`). For small problems on the host's side of tracking, e.g.
+    the keyframe window's pose graph (:mod:`jaxvo.tracking.window`). Traceable (call it inside
+    ``jax.jit``). Returns (params, iterations)."""
+    solver = jaxopt.LevenbergMarquardt(residual_fun=residual_fun, materialize_jac=True, solver="cholesky",
+                                       maxiter=maxiter, damping_parameter=damping, implicit_diff=False,
+                                       jit=True)
+    params, state = _run_lm(solver, params, maxiter, xtol)
+    return params, state.iter_num.astype(jnp.int32)
+
+
 def _normalised_weights(weights, depth_weight):
     """(w (M,), total): per-residual weights from per-point ``weights`` ((N,) or (N, 2)), negative
     ones 0, divided by their sum ``total`` (at least 1).

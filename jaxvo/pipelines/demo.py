@@ -4,16 +4,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Dict, Optional
+from typing import Callable, Dict, Optional
 
 import numpy as np
 
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.data import DatasetError, TumSequence
+from jaxvo.data.outputs import check_own_folder, finish, partial_path, write_text, writing
 from jaxvo.evaluation.scoring import load_mask, true_masks
 from jaxvo.pipelines.mapping import moving_mask
 from jaxvo.evaluation.metrics import ATEResult, RPEResult
@@ -77,9 +77,12 @@ def fmt(x, nd=4) -> str:
 
 
 def progress_bar(**kw):
-    """A tqdm progress bar on stderr."""
+    """A tqdm progress bar on stderr. Its rate is not tqdm's (which counts the compilation of
+    the first step): a run's recorder shows its own ``fps`` after compilation, the number of
+    the run's summary."""
     from tqdm import tqdm
 
+    kw.setdefault("bar_format", "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}{postfix}]")
     return tqdm(dynamic_ncols=True, file=sys.stderr, **kw)
 
 
@@ -96,10 +99,24 @@ def _sequence_matches(seq_dir: Path, name, frames, seed, cam, sensor) -> bool:
             and (seq_dir / "groundtruth.txt").is_file() and (seq_dir / "masks.txt").is_file())
 
 
+def _written_by_jaxvo(seq_dir: Path) -> bool:
+    """A synthetic sequence folder jaxvo wrote (its info.json names the scene, seed and frames)."""
+    try:
+        info = json.loads((seq_dir / "info.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and {"name", "seed", "frames", "camera"} <= set(info)
+
+
 def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", size: str = "320x240",
-             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS) -> DemoResult:
-    """The work of ``jaxvo demo``: the sequence (reused under ``out_dir/sequence`` when it matches),
-    each method's run, table and figures, written into ``out_dir``; returns a :class:`DemoResult`."""
+             sensor: bool = True, progress: bool = True, methods=DEMO_METHODS, force: bool = False,
+             check: Callable[[], None] = lambda: None, on_start: Callable[[], None] = lambda: None) -> DemoResult:
+    """The work of ``jaxvo demo``: the sequence (reused under ``out_dir/sequence`` when it matches,
+    replaced when jaxvo wrote it; a folder of other files there is refused unless ``force``),
+    each method's run, table and figures, written into ``out_dir``; returns a :class:`DemoResult`.
+    Every file is written under its ``.partial`` name and renamed when complete, so an
+    interrupted demo leaves the previous complete files as they were. ``check()`` is called
+    between steps (it raises KeyboardInterrupt to stop), ``on_start()`` once the outputs are checked."""
     from jaxvo import viz
     from jaxvo.evaluation.metrics import ate, mask_scores, rpe
     from jaxvo.config import Config
@@ -116,22 +133,26 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     cam = camera_for_size(DEFAULT, width, height)
     seq_dir = out / "sequence"
     reuse = _sequence_matches(seq_dir, seq_name, frames, seed, cam, sensor)
+    if not reuse:
+        check_own_folder(seq_dir, _written_by_jaxvo, force)
+    on_start()
     total = (0 if reuse else frames) + len(methods) * (frames - 1)
     pbar = progress_bar(total=total, unit="step", desc="demo") if progress else None
     try:
         if not reuse:
-            if seq_dir.exists():
-                shutil.rmtree(seq_dir)
             if pbar is not None:
                 pbar.set_description(f"demo: render {seq_name}")
             done = [0]
 
             def prog(k, n):
+                check()
                 if pbar is not None:
                     pbar.update(k - done[0])
                 done[0] = k
-            generate(seq_name, seq_dir, frames=frames, seed=seed, camera=cam,
+            tmp = partial_path(seq_dir, fresh=True)
+            generate(seq_name, tmp, frames=frames, seed=seed, camera=cam,
                      sensor=SensorModel() if sensor else None, progress=prog)
+            finish(tmp, seq_dir)
         seq = TumSequence(seq_dir, camera=cam)
         gt_t, gt_T = seq.groundtruth
         mt, mpaths = true_masks(seq_dir)
@@ -151,11 +172,14 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                 s = mask_scores(pred, masks_true[step.reference], val)
                 counts += (s.tp, s.fp, s.fn, s.tn)
                 seen.setdefault(method, {})[step.reference] = (~pred, val)
+                check()
             if pbar is not None:
                 pbar.set_description(f"demo: {method}")
-            res = run_sequence(seq, config, seed, out=out / f"traj_{method}.txt", on_pair=on_pair, pbar=pbar)
+            traj = out / f"traj_{method}.txt"
+            res = run_sequence(seq, config, seed, out=partial_path(traj), on_pair=on_pair, pbar=pbar)
             if res.interrupted:
                 raise KeyboardInterrupt
+            finish(partial_path(traj), traj)
             r1 = rpe(gt_t, gt_T, res.stamps, res.poses, 1, "f")
             a = ate(gt_t, gt_T, res.stamps, res.poses)
             tp, fp, fn, tn = (int(x) for x in counts)
@@ -189,10 +213,10 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
     keep = (gt_t >= seq.timestamps[0] - 0.05) & (gt_t <= seq.timestamps[-1] + 0.05)
     trajs = {"groundtruth": gt_T[keep, :3, 3]}
     trajs.update({m: d.ate.aligned[:, :3, 3] for m, d in results.items()})
-    figs["trajectories"] = viz.save_figure(
+    figs["trajectories"] = _save_figure(
         viz.plot_trajectories(trajs, title=f"{seq_name}: trajectories, top view (aligned to ground truth)"),
         out / "trajectories.png")
-    figs["translational_error"] = viz.save_figure(
+    figs["translational_error"] = _save_figure(
         viz.plot_errors_over_time({m: d.rpe.stamps_j - t0 for m, d in results.items()},
                                   {m: 1000 * d.rpe.trans for m, d in results.items()},
                                   ylabel="translational RPE [mm/frame]",
@@ -218,7 +242,8 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
         fig.suptitle(f"{seq_name} frame {show} (t = {seq.timestamps[show] - t0:.2f} s); true moving pixels "
                      f"outlined red", fontsize=9)
         fig.tight_layout()
-        figs["inliers_outliers"] = viz.save_figure(fig, out / "inliers_outliers.png")
+        check()
+        figs["inliers_outliers"] = _save_figure(fig, out / "inliers_outliers.png")
 
     wall = time.perf_counter() - t_start
     js = {"sequence": seq_name, "frames": frames, "size": size, "sensor": sensor, "seed": seed,
@@ -230,9 +255,17 @@ def run_demo(out_dir, frames: int = 100, seed: int = 0, seq_name: str = "seq2", 
                             "failures": d.run.failures,
                             "mask_precision": _clean(d.precision), "mask_recall": _clean(d.recall),
                             "mask_iou": _clean(d.iou)}
-    (out / "results.json").write_text(json.dumps(js, indent=1) + "\n")
-    (out / "results.md").write_text("```\n" + table + "\n```\n")
+    check()
+    write_text(out / "results.json", json.dumps(js, indent=1) + "\n")
+    write_text(out / "results.md", "```\n" + table + "\n```\n")
     return DemoResult(table, results, figs, wall, show)
+
+
+def _save_figure(fig, path) -> Path:
+    """:func:`jaxvo.viz.save_figure` under the ``.partial`` name, renamed when complete."""
+    from jaxvo import viz
+
+    return writing(path, lambda p: viz.save_figure(fig, p))
 
 
 def _clean(x):

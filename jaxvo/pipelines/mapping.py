@@ -455,7 +455,7 @@ class MapRun:
 
 def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 0.01, method: str = "ransac",
                  max_frames: Optional[int] = None, max_depth: float = 4.0, preview=None,
-                 labels: Optional[str] = "estimate", seed: int = 0, camera_preset: Optional[str] = None,
+                 labels: Optional[str] = "hindsight", seed: int = 0, camera_preset: Optional[str] = None,
                  depth_scale: Optional[float] = None, max_dt: float = 0.02, force: bool = False,
                  on_start: Optional[Callable] = None,
                  progress: Optional[Callable[[int, int], None]] = None) -> MapRun:
@@ -465,22 +465,25 @@ def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 
     :func:`build_map` (``labels``, ``every``, ``voxel`` metres, ``max_depth`` metres, estimator
     ``method``, ``seed``, ``max_dt`` s) with the sequence opened as ``jaxvo run`` would
     (:func:`jaxvo.pipelines.run.load_sequence`). ``out_ply`` gets the cloud in its display
-    colours, ``preview`` a PNG rendering (:func:`render_preview`); both are written under
+    colours and each point's label as the vertex property ``moving`` (with ``labels``; the default,
+    "hindsight", marks what moves, people included, with :func:`jaxvo.tracking.hindsight.sequence_masks`),
+    ``preview`` a PNG rendering (:func:`render_preview`); both are written under
     ``.partial`` names and renamed when complete, and refused where they would replace or land
     inside an input (unless ``force``). ``on_start(seq, held)`` is called once the sequence is
     open, before the work; ``progress(done, total)`` after each frame used.
     """
     from jaxvo.config import Config
-    from jaxvo.data.outputs import check_output, finish, partial_path
+    from jaxvo.data.outputs import check_output, writing
     from jaxvo.data.ply import write_ply
     from jaxvo.data import DatasetError
-    from jaxvo.pipelines.run import load_sequence
+    from jaxvo.pipelines.run import check_camera_size, load_sequence
 
     kept = read_kept_poses(traj)
     check_output(out_ply, [sequence_dir, traj], force)
     if preview is not None:
         check_output(preview, [sequence_dir, traj, out_ply], force, "--preview")
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
+    check_camera_size(seq)
     if on_start is not None:
         on_start(seq, kept.held)
     res = build_map(seq, kept.stamps, kept.poses, every=every, voxel=voxel, max_depth=max_depth, labels=labels,
@@ -488,12 +491,10 @@ def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 
     cloud = res.cloud
     if len(cloud) == 0:
         raise DatasetError(f"{sequence_dir}: no pixel with valid depth <= {max_depth} m in the frames used")
-    tmp = partial_path(out_ply, keep_suffix=True)
-    write_ply(tmp, cloud.points, cloud.display_colors())
-    finish(tmp, out_ply)
+    writing(out_ply, lambda p: write_ply(p, cloud.points, cloud.display_colors(),
+                                         cloud.moving if labels else None))
     if preview is not None:
-        tmp = partial_path(preview, keep_suffix=True)
-        render_preview(cloud.points, cloud.display_colors(), tmp, poses=res.poses,
-                       title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else ""))
-        finish(tmp, preview)
+        writing(preview, lambda p: render_preview(
+            cloud.points, cloud.display_colors(), p, poses=res.poses,
+            title=f"{seq.name}: {len(cloud)} points" + (", moving points green" if labels else "")))
     return MapRun(res, seq, kept.held, labels, Path(out_ply), None if preview is None else Path(preview))

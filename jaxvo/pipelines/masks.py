@@ -18,7 +18,7 @@ from jaxvo.data.outputs import check_output_folder, finish, partial_path
 from jaxvo.data import DatasetError
 from jaxvo.pipelines.mapping import match_trajectory, read_kept_poses
 from jaxvo.pipelines.messages import one_line
-from jaxvo.pipelines.run import load_sequence, stamp_name
+from jaxvo.pipelines.run import check_camera_size, load_sequence, stamp_name
 
 __all__ = ["MasksRun", "write_hindsight_masks"]
 
@@ -59,6 +59,7 @@ def write_hindsight_masks(sequence_dir, traj, out_dir, *, offsets: Sequence[int]
     kept = read_kept_poses(traj)
     check_output_folder(out_dir, [sequence_dir, traj], force)
     seq = load_sequence(sequence_dir, camera_preset, depth_scale=depth_scale, max_dt=max_dt, max_frames=max_frames)
+    check_camera_size(seq)
     idx, T = match_trajectory(seq.timestamps, kept.stamps, kept.poses, max_dt)
     if idx.size == 0:
         raise DatasetError(f"{traj}: no pose within {max_dt} s of a frame of {sequence_dir}")

@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxvo.runtime import machine
 from jaxvo.camera import PRESETS, Camera
-from jaxvo.data.outputs import check_output, finish, partial_path
+from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path, write_text
 from jaxvo.data import DatasetError, TumSequence, find_sequences, open_sequence
 from jaxvo.evaluation.scoring import TrajectoryErrors, trajectory_errors
 from jaxvo.pipelines.mapping import moving_mask
@@ -40,7 +40,7 @@ from jaxvo.pipelines.messages import one_line
 __all__ = ["RunResult", "run_sequence", "run_sequences", "load_config", "read_run_settings", "run_header",
            "load_sequence", "resolve_camera", "stamp_name", "RunSettings", "ReaderOptions", "RunSetup", "RunPlan",
            "SequenceRun", "RunReport", "track_policy", "expand_sequences", "setup_run", "plan_run", "execute_run",
-           "count_poses"]
+           "count_poses", "check_camera_size", "mask_name", "MASK_INDEX", "unusable_message"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +159,25 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
     return seq
 
 
+def check_camera_size(seq: TumSequence) -> None:
+    """Intrinsics for another image size than the sequence's first frame raise DatasetError with
+    what fixes it: the size is the images', so leave a preset out (the folder's own intrinsics,
+    else its name's preset scaled to the images) or write the calibration file for that size."""
+    _, depth = seq.read_images(0)
+    h, w = depth.shape[:2]
+    c = seq.camera
+    if (c.width, c.height) == (w, h):
+        return
+    source = seq.camera_source
+    if source.startswith("preset"):
+        fix = (f"the {source} is for {c.width}x{c.height}; leave --camera out to use the folder's own "
+               f"intrinsics, else its name's preset scaled to {w}x{h}")
+    else:
+        fix = (f"the intrinsics from {source} are for {c.width}x{c.height}; write them for {w}x{h} there (or move "
+               f"that file away: the folder name's preset is then scaled to {w}x{h})")
+    raise DatasetError(f"{seq.path}: the images are {w}x{h}, which does not match the camera: {fix}")
+
+
 def resolve_camera(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None) -> Camera:
     """The intrinsics :func:`load_sequence` gives a folder (see there)."""
     return load_sequence(seq_dir, preset, fx, fy, cx, cy, max_frames=1).camera
@@ -168,6 +187,18 @@ def stamp_name(t: float) -> str:
     return f"{float(t):.6f}"
 
 
+#: the index of the outlier masks of ``jaxvo run --save-masks`` (in their folder)
+MASK_INDEX = "masks.txt"
+MASK_INDEX_HEADER = ("# outlier masks of jaxvo run --save-masks, one per pair; a mask lies on the reference "
+                     "frame's pixels\n# reference_timestamp file current_timestamp\n")
+
+
+def mask_name(ref_stamp: float, cur_stamp: float) -> str:
+    """The file of one pair's outlier mask: named by the reference and the current frame
+    (``<reference>-<current>.png``), so the pairs that share a keyframe keep one file each."""
+    return f"{stamp_name(ref_stamp)}-{stamp_name(cur_stamp)}.png"
+
+
 @dataclasses.dataclass(frozen=True)
 class RunResult:
     """What :func:`run_sequence` did.
@@ -175,7 +206,8 @@ class RunResult:
     stamps (n,) s and poses (n, 4, 4) T_world_cam of the frames written (frame 0 at the start pose);
     inlier_ratio, valid (n-1,) per finished pair; compile_s: wall time until the first pair was
     done (reading, compiling and running it); fps: pairs per second after the first pair (NaN
-    with fewer than 2 pairs); interrupted: ended by Ctrl-C.
+    with fewer than 2 pairs); interrupted: ended by Ctrl-C; error: the one-line reason a
+    sequence of a batch stopped early (a frame that does not read), None when it did not.
     """
     method: str
     stamps: np.ndarray
@@ -186,6 +218,7 @@ class RunResult:
     fps: float
     wall_s: float
     interrupted: bool = False
+    error: Optional[str] = None
 
     @property
     def pairs(self) -> int:
@@ -194,6 +227,12 @@ class RunResult:
     @property
     def failures(self) -> int:
         return int(np.sum(~self.valid))
+
+    @property
+    def unusable(self) -> bool:
+        """The run produced nothing usable: more than half of its pairs failed (their pose is the
+        previous one held), as when the depth scale is wrong or masks hide every pixel."""
+        return self.pairs > 0 and 2 * self.failures > self.pairs
 
 
 class _Recorder:
@@ -208,7 +247,7 @@ class _Recorder:
 
         self.seq, self.method, self.on_pair, self.pbar = seq, config.method, on_pair, pbar
         self.stamps = np.asarray(seq.timestamps, np.float64)
-        self.mask_dir = None
+        self.mask_dir, self.mask_index, self.error = None, [], None
         if save_masks is not None:
             self.mask_dir = Path(save_masks)
             try:
@@ -231,6 +270,16 @@ class _Recorder:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+        if self.mask_dir is not None:
+            write_text(self.mask_dir / MASK_INDEX, MASK_INDEX_HEADER + "".join(self.mask_index))
+
+    def frames(self, frames):
+        """``frames`` until one does not read: then the error is kept (``self.error``) and the
+        sequence ends there, so the other sequences of its batch go on."""
+        try:
+            yield from frames
+        except (DatasetError, ValueError, OSError) as e:
+            self.error = one_line(e)
 
     def step(self, step) -> None:
         import cv2
@@ -243,23 +292,33 @@ class _Recorder:
             self.writer.write(self.stamps[i + 1], pose, held=not step.valid)
         if self.mask_dir is not None:
             m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
-            p = self.mask_dir / f"{stamp_name(self.stamps[ref])}.png"
+            name = mask_name(self.stamps[ref], self.stamps[i + 1])
+            p = self.mask_dir / name
             if not cv2.imwrite(str(p), m.astype(np.uint8) * 255):
-                raise OSError(f"{p}: could not write mask image")
+                raise DatasetError(f"{p}: cannot write the mask image (disk full or no permission?)")
+            self.mask_index.append(f"{stamp_name(self.stamps[ref])} {name} {stamp_name(self.stamps[i + 1])}\n")
         if self.on_pair is not None:
             self.on_pair(step)
         self.times.append(time.perf_counter())
         if self.pbar is not None:
+            fps = self.fps()
+            self.pbar.set_postfix(inliers=f"{self.ratios[-1]:.2f}", refresh=False,
+                                  **({"fps": f"{fps:.2f}"} if np.isfinite(fps) else {}))
             self.pbar.update(1)
-            self.pbar.set_postfix(inliers=f"{self.ratios[-1]:.2f}", refresh=False)
+
+    def fps(self) -> float:
+        """Pairs per second after the first pair (compilation): the summary's frames/s."""
+        times = self.times
+        return (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] \
+            else float("nan")
 
     def result(self, interrupted: bool) -> "RunResult":
         times, n = self.times, len(self.poses)
         compile_s = (times[0] - self.t0) if times else float("nan")
-        fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] \
-            else float("nan")
+        fps = self.fps()
         return RunResult(self.method, self.stamps[:n].copy(), np.stack(self.poses), np.asarray(self.ratios),
-                         np.asarray(self.valids, bool), compile_s, fps, time.perf_counter() - self.t0, interrupted)
+                         np.asarray(self.valids, bool), compile_s, fps, time.perf_counter() - self.t0, interrupted,
+                         self.error)
 
 
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
@@ -269,9 +328,9 @@ def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=N
     ``jax.random.key(seed)``, so results equal the library's. The trajectory goes to ``out`` as
     it grows (first frame at identity), after the ``#`` header of :func:`run_header` (version,
     method, seed, config, policy, reader settings). Optionally each estimate's outlier mask goes
-    into ``save_masks`` (PNG named by the *reference* frame's timestamp: the mask lives on the
-    reference image's pixels; with keyframes the last estimate against a reference, the longest
-    baseline, is the one kept). ``on_pair(step)`` is called with each
+    into ``save_masks``: one PNG per pair named by the reference and the current frame
+    (:func:`mask_name`; the mask lives on the reference image's pixels), listed in its index
+    ``MASK_INDEX`` (``reference_timestamp file current_timestamp`` per line). ``on_pair(step)`` is called with each
     :class:`jaxvo.tracking.odometry.TrackStep`; ``pbar`` (tqdm) is advanced once per frame. Ctrl-C ends the
     run early (``interrupted=True``) keeping everything written so far.
     """
@@ -301,7 +360,9 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
     (:func:`jaxvo.tracking.batch.track_batch`: their estimates vmapped together, in lockstep, over the
     available devices). Each sequence uses the key ``jax.random.key(seed)`` as it would alone and
     writes its trajectory to its entry of ``outs`` (None = none). ``on_pair(s, step)`` is called
-    with sequence index and :class:`jaxvo.tracking.odometry.TrackStep`. Returns one RunResult per sequence.
+    with sequence index and :class:`jaxvo.tracking.odometry.TrackStep`. A frame that does not read
+    ends its sequence there (its RunResult's ``error``); the others go on. Returns one RunResult
+    per sequence.
     """
     import functools
 
@@ -314,7 +375,7 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
                       pbar, policy) for s, (seq, out) in enumerate(zip(seqs, outs))]
     interrupted = False
     iters = [seq.prefetch(2) for seq in seqs]
-    frames = [(f for _, f in it) for it in iters]
+    frames = [rec.frames(f for _, f in it) for rec, it in zip(recs, iters)]
     try:
         for rec in recs:
             rec.open()
@@ -334,12 +395,12 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
 # ----------------------------------------------------------------------------- folders, as jaxvo run takes them
 
 def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
-                 segment: Optional[bool] = None):
+                 segment: Optional[bool] = None, window: Optional[int] = None):
     """:class:`jaxvo.config.TrackConfig` from ``jaxvo run``'s options on top of ``base`` (default
     ``TrackConfig()``, jaxvo's segmented keyframes): ``frame_to_frame`` (the paper's chaining),
     ``gap`` / ``lag`` in frames (lag defaults to gap // 2; None keeps base's; a gap turns off the
-    calm frame-to-frame mode), ``segment`` (None keeps base's). A bad combination raises
-    ValueError naming the options."""
+    calm frame-to-frame mode), ``segment`` and ``window`` (keyframes in the window; None keeps
+    base's). A bad combination raises ValueError naming the options."""
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
@@ -354,6 +415,8 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
         policy = base._replace(max_gap=int(gap), lag=int(gap) // 2 if lag is None else int(lag), calm_fraction=0.0)
     if segment is not None:
         policy = policy._replace(segment=bool(segment))
+    if window is not None:
+        policy = policy._replace(window=int(window))
     try:
         policy.validate()
     except ValueError:
@@ -396,28 +459,40 @@ class ReaderOptions:
     start: int = 0
     max_frames: Optional[int] = None
     mask_dir: Optional[Path] = None
+    camera_from: Optional[str] = None
 
     def open(self, path) -> TumSequence:
-        """The sequence folder ``path`` opened with these options."""
-        return load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy,
-                             depth_scale=self.depth_scale, max_dt=self.max_dt, start=self.start,
-                             max_frames=self.max_frames, mask_dir=self.mask_dir)
+        """The sequence folder ``path`` opened with these options (``camera_from``, when set, names
+        where fx, fy, cx, cy came from, e.g. a trajectory header)."""
+        seq = load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy,
+                            depth_scale=self.depth_scale, max_dt=self.max_dt, start=self.start,
+                            max_frames=self.max_frames, mask_dir=self.mask_dir)
+        if self.camera_from is not None:
+            seq.camera_source = self.camera_from
+        return seq
 
 
 @dataclasses.dataclass(frozen=True)
 class RunSetup:
     """What a run uses (:func:`setup_run`): config, keyframe policy (TrackConfig), seed, reader
     options, and how the machine that wrote the config file differs from this one
-    (``"name: recorded -> current"`` each; there a rerun may differ at float rounding)."""
+    (``"name: recorded -> current"`` each; there a rerun may differ at float rounding).
+    With a config file: ``sources`` (``"setting: where from"`` each: the file, the command line
+    or today's default), ``missing`` (the settings a trajectory header lacks, filled with
+    today's defaults: an older jaxvo wrote it) and ``header_sequence`` (the folder the header
+    was written for)."""
     config: object
     policy: object
     seed: int
     reader: ReaderOptions
     machine_differences: Tuple[str, ...] = ()
+    sources: Tuple[str, ...] = ()
+    missing: Tuple[str, ...] = ()
+    header_sequence: Optional[str] = None
 
 
 def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=None, finest_level=None,
-              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None,
+              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None, window=None,
               frame_to_frame: bool = False, paper: bool = False, camera_preset=None, fx=None, fy=None, cx=None,
               cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None,
               from_header: bool = True) -> RunSetup:
@@ -429,7 +504,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     user masks, intrinsics), so the run is reproduced bitwise on the same machine. Options not
     given and not in the file take their defaults (seed 0, start 0, max_dt 0.02 s).
     ``paper``: :meth:`jaxvo.config.Config.paper` and frame to frame; ``keyframe_gap``,
-    ``keyframe_lag``, ``segment``, ``frame_to_frame``: :func:`track_policy`.
+    ``keyframe_lag``, ``segment``, ``window``, ``frame_to_frame``: :func:`track_policy`.
     """
     from jaxvo.config import Config, TrackConfig
 
@@ -443,7 +518,8 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     config = load_config(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                          finest_level=finest_level)
     if seed is None:
-        seed = int(settings.seed) if settings.seed is not None else 0
+        seed = _header_value(config_file, "seed", settings.seed, "an integer >= 0", int, 0) \
+            if settings.seed is not None else 0
     try:
         base = TrackConfig.from_json(settings.track) if settings.track is not None else None
     except (ValueError, TypeError) as e:
@@ -451,20 +527,76 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     if paper:
         config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
                               finest_level=config.finest_level)
-    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment)
+    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment, window)
     sq = (settings.sequence or {}) if from_header else {}
+    if sq and not isinstance(sq, dict):
+        raise DatasetError(f"{config_file}: '# sequence:' header: expected a JSON object, got {sq!r}")
+    given = {"start": start, "frames": max_frames, "max_dt": max_dt, "depth_scale": depth_scale,
+             "mask_dir": mask_dir, "camera": None if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4
+             else "given"}
+    camera_from = None
     if sq:
-        start = sq.get("start", 0) if start is None else start
-        max_frames = sq.get("frames") if max_frames is None else max_frames
-        max_dt = sq.get("max_dt", 0.02) if max_dt is None else max_dt
-        depth_scale = sq.get("depth_scale") if depth_scale is None else depth_scale
-        mask_dir = sq.get("mask_dir") if mask_dir is None else mask_dir
+        h = functools.partial(_header_value, config_file)
+        start = h("start", sq.get("start"), "an integer >= 0", int, 0) if start is None else start
+        max_frames = h("frames", sq.get("frames"), "an integer >= 2", int, 2) if max_frames is None else max_frames
+        max_dt = h("max_dt", sq.get("max_dt"), "a number > 0 (seconds)", float, 0) if max_dt is None else max_dt
+        depth_scale = h("depth_scale", sq.get("depth_scale"), "a number > 0", float, 0) \
+            if depth_scale is None else depth_scale
+        mask_dir = h("mask_dir", sq.get("mask_dir"), "a folder name", str) if mask_dir is None else mask_dir
         c = sq.get("camera")
-        if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4 and isinstance(c, dict):
-            fx, fy, cx, cy = c.get("fx"), c.get("fy"), c.get("cx"), c.get("cy")
+        if c is not None and not isinstance(c, dict):
+            raise DatasetError(f"{config_file}: '# sequence:' header: \"camera\" must be a JSON object of fx, fy, "
+                               f"cx, cy, got {c!r}")
+        if given["camera"] is None and isinstance(c, dict):
+            fx, fy, cx, cy = (h(f"camera.{k}", c.get(k), "a number > 0 (pixels)", float, 0)
+                              for k in ("fx", "fy", "cx", "cy"))
+            camera_from = f"the header of {config_file}"
     reader = ReaderOptions(camera_preset, fx, fy, cx, cy, depth_scale, 0.02 if max_dt is None else max_dt,
-                           0 if start is None else start, max_frames, mask_dir)
-    return RunSetup(config, policy, int(seed), reader, tuple(diffs))
+                           0 if start is None else start, max_frames, mask_dir, camera_from)
+    sources, missing = _provenance(config_file, settings, sq, given, from_header)
+    return RunSetup(config, policy, int(seed), reader, tuple(diffs), sources, missing,
+                    sq.get("path") if sq else None)
+
+
+def _header_value(path, name: str, value, what: str, kind, low=None):
+    """A value of a trajectory header (None stays None) checked for its type: DatasetError naming
+    the file and the field (``"frames" must be an integer >= 2, got 'all'``) otherwise."""
+    if value is None:
+        return None
+    ok = isinstance(value, str) if kind is str else (
+        isinstance(value, (int, float)) and not isinstance(value, bool) and
+        (kind is float or float(value).is_integer()) and np.isfinite(value) and
+        (low is None or (value >= low if kind is int else value > low)))
+    if not ok:
+        raise DatasetError(f"{path}: header field \"{name}\" must be {what}, got {value!r}")
+    return kind(value)
+
+
+#: the reader's settings a trajectory header of jaxvo run holds
+_HEADER_SEQUENCE = ("start", "frames", "max_dt", "depth_scale", "camera", "mask_dir")
+
+
+def _provenance(config_file, settings, sq: dict, given: dict, from_header: bool):
+    """(``"setting: where from"`` each, the settings a trajectory header lacks) of a run with a
+    config file; ((), ()) without one."""
+    if config_file is None:
+        return (), ()
+    from jaxvo.config import Config, TrackConfig
+
+    is_header = settings.track is not None or settings.seed is not None or settings.sequence is not None
+    missing = [f"config.{f.name}" for f in dataclasses.fields(Config) if f.name not in settings.config]
+    if not is_header:
+        return (f"config: {config_file}",), ()
+    missing += [f"track.{f}" for f in TrackConfig._fields if f not in (settings.track or {})]
+    missing += ["seed"] if settings.seed is None else []
+    sources = [f"config, track, seed: {config_file}"]
+    if from_header:
+        missing += [f"sequence.{k}" for k in _HEADER_SEQUENCE if k not in (settings.sequence or {})]
+        for k in _HEADER_SEQUENCE:
+            where = ("the command line" if given[k] is not None else config_file if k in sq
+                     else "today's default")
+            sources.append(f"{k.replace('_', ' ')}: {where}")
+    return tuple(sources), tuple(missing)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -496,10 +628,11 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
         inputs = [dirs[0], config_file, setup.reader.mask_dir]
         check_output(out, inputs, force, "--out")
         if save_masks is not None:
-            check_output(save_masks, inputs, force, "--save-masks")
+            check_output_folder(save_masks, inputs, force, "--save-masks")
         seq = setup.reader.open(dirs[0])
         if len(seq) < 2:
             raise DatasetError(f"{dirs[0]}: only {len(seq)} frame(s) to use, need at least 2")
+        check_camera_size(seq)
         seq.check(1)                 # a bad first image is reported before compiling
         seq.groundtruth              # and so is ground truth that does not cover the frames
         return RunPlan(setup, (seq,), (out,), ((0,),), None if save_masks is None else Path(save_masks))
@@ -511,6 +644,7 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
         if len(seq) < 2:
             raise DatasetError(f"{seq.path}: only {len(seq)} frame(s) to use, need at least 2")
         check_output(o, [s.path for s in seqs] + [config_file], force, "--out-dir")
+        check_camera_size(seq)
         seq.check(1)
     groups: dict = {}
     for k, seq in enumerate(seqs):
@@ -524,21 +658,29 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
 
 @dataclasses.dataclass(frozen=True)
 class SequenceRun:
-    """One sequence of a :class:`RunReport`: the sequence, its :class:`RunResult`, where its
-    trajectory is (under its ``.partial`` name when the run was interrupted) and its errors
-    against the sequence's ground truth (None without ground truth)."""
+    """One sequence of a :class:`RunReport`: the sequence, its :class:`RunResult` (None: its
+    batch was not reached before Ctrl-C), where its trajectory is (under its ``.partial`` name
+    unless it ran to the end), its errors against the sequence's ground truth (None without
+    ground truth) and why it is not a success (None when it is): a frame that did not read, or
+    :func:`unusable_message`."""
     sequence: TumSequence
-    result: RunResult
+    result: Optional[RunResult]
     trajectory: Path
     errors: Optional[TrajectoryErrors]
+    problem: Optional[str] = None
 
 
 @dataclasses.dataclass(frozen=True)
 class RunReport:
-    """What :func:`execute_run` did: one :class:`SequenceRun` per sequence tracked (in the plan's
-    order; an interrupted batch run lacks the batches it did not reach) and whether Ctrl-C ended it."""
+    """What :func:`execute_run` did: one :class:`SequenceRun` per sequence of the plan (in its
+    order) and whether Ctrl-C ended it."""
     runs: Tuple[SequenceRun, ...]
     interrupted: bool
+
+    @property
+    def problems(self) -> Tuple[str, ...]:
+        """The one-line reasons, per sequence that is not a success."""
+        return tuple(r.problem for r in self.runs if r.problem is not None)
 
 
 def count_poses(path) -> int:
@@ -549,48 +691,102 @@ def count_poses(path) -> int:
         return 0
 
 
+def unusable_message(seq: TumSequence, res: RunResult, trajectory) -> Optional[str]:
+    """The one-line error of a run that produced nothing usable (:attr:`RunResult.unusable`:
+    more than half of the pairs failed), naming the likely cause from the first frame: masks that
+    hide (nearly) every pixel, or a depth whose median is implausible at the scale used; else
+    every usual cause. None for a usable run."""
+    if not res.unusable:
+        return None
+    from jaxvo.data import read_frame_mask
+
+    cause = None
+    try:
+        _, depth = seq.read_images(0)
+        valid = depth[depth > 0]
+        median = float(np.median(valid)) / seq.depth_scale if valid.size else float("nan")
+        mp = seq.mask_paths[0] if getattr(seq, "mask_paths", None) else None
+        used = float((read_frame_mask(mp, depth.shape) > 0).mean()) if mp is not None else 1.0
+    except (DatasetError, ValueError, OSError):
+        median, used = float("nan"), 1.0
+    if used < 0.05:
+        cause = (f"the masks of {seq.mask_dir} leave {100 * used:.1f} % of the pixels (nonzero = use the pixel; "
+                 f"a 16-bit 0/1 mask reads as all 0: write 8-bit 0/255)")
+    elif not valid.size:
+        cause = "the first frame has no valid depth"
+    else:
+        cause = (f"a wrong --depth-scale? ({seq.depth_scale:g} makes the first frame's median depth "
+                 f"{median:.2f} m; TUM/Bonn/ETH3D/ICL-NUIM use 5000, Redwood/Open3D/RealSense millimetres 1000), "
+                 f"masks that hide the scene, or images without texture")
+    return (f"{seq.path}: nothing usable: {res.failures} of {res.pairs} pairs failed (more than half); likely "
+            f"cause: {cause}; the trajectory is kept in {trajectory}")
+
+
+def _sequence_run(seq: TumSequence, res: RunResult, out: Path, max_dt: float) -> SequenceRun:
+    """A :class:`SequenceRun` of a finished (or stopped) tracking: the trajectory is renamed to
+    ``out`` when the sequence ran to its end (a run with nothing usable too: it is complete)."""
+    partial = partial_path(out)
+    done = not res.interrupted and res.error is None
+    if done:
+        finish(partial, out)
+    trajectory = out if done else partial
+    gt = seq.groundtruth
+    errors = trajectory_errors(gt, res.stamps, res.poses, max_dt) if gt is not None and len(res.stamps) else None
+    problem = None
+    if res.error is not None:
+        n = count_poses(partial)
+        problem = res.error + (f" ({n} finished poses kept in {partial})" if n else "")
+    elif not res.interrupted:
+        problem = unusable_message(seq, res, trajectory)
+    return SequenceRun(seq, res, trajectory, errors, problem)
+
+
 def execute_run(plan: RunPlan, pbar=None, on_pair: Optional[Callable] = None) -> RunReport:
     """Track the plan's sequences: one alone with :func:`run_sequence`, several batch by batch with
     :func:`run_sequences`. Each trajectory grows under its ``.partial`` name (flushed line by line)
-    and gets its name when the run completes. ``on_pair(k, step)`` is called with the sequence's
-    index in the plan and each :class:`jaxvo.tracking.odometry.TrackStep`; ``pbar`` (tqdm) advances
-    once per frame. A failure raises DatasetError saying where the finished poses are kept.
+    and gets its name when its sequence is done (a finished batch's at once). ``on_pair(k, step)``
+    is called with the sequence's index in the plan and each
+    :class:`jaxvo.tracking.odometry.TrackStep`; ``pbar`` (tqdm) advances once per frame.
+
+    One sequence: a failure raises DatasetError saying where the finished poses are kept.
+    Several: a frame that does not read stops only its sequence, a failing batch only its
+    sequences; each one's reason is its SequenceRun's ``problem``, as is a run with nothing
+    usable (:func:`unusable_message`).
     """
     s = plan.setup
     if len(plan.sequences) == 1:
         seq, out = plan.sequences[0], plan.outputs[0]
         partial = partial_path(out)
+        masks = None if plan.save_masks is None else partial_path(plan.save_masks, fresh=True)
         try:
-            res = run_sequence(seq, s.config, s.seed, out=partial, save_masks=plan.save_masks, pbar=pbar,
+            res = run_sequence(seq, s.config, s.seed, out=partial, save_masks=masks, pbar=pbar,
                                policy=s.policy, on_pair=None if on_pair is None else functools.partial(on_pair, 0))
         except (DatasetError, ValueError, OSError) as e:
             n = count_poses(partial)
             raise DatasetError(one_line(e) + (f" ({n} finished poses kept in {partial})" if n else "")) from None
-        if not res.interrupted:
-            finish(partial, out)
-        gt = seq.groundtruth
-        errors = trajectory_errors(gt, res.stamps, res.poses, s.reader.max_dt) if gt is not None else None
-        return RunReport((SequenceRun(seq, res, partial if res.interrupted else out, errors),), res.interrupted)
-    results: dict = {}
-    try:
-        for ks in plan.batches:
-            res = run_sequences([plan.sequences[k] for k in ks], s.config, s.seed,
-                                [partial_path(plan.outputs[k]) for k in ks], pbar=pbar, policy=s.policy,
+        if masks is not None and not res.interrupted:
+            finish(masks, plan.save_masks)
+        return RunReport((_sequence_run(seq, res, out, s.reader.max_dt),), res.interrupted)
+    runs: dict = {}
+    interrupted = False
+    for ks in plan.batches:
+        if interrupted:
+            break
+        seqs = [plan.sequences[k] for k in ks]
+        try:
+            res = run_sequences(seqs, s.config, s.seed, [partial_path(plan.outputs[k]) for k in ks], pbar=pbar,
+                                policy=s.policy,
                                 on_pair=None if on_pair is None else (lambda j, step, ks=ks: on_pair(ks[j], step)))
-            results.update(zip(ks, res))
-            if any(r.interrupted for r in res):
-                break
-    except (DatasetError, ValueError, OSError) as e:
-        raise DatasetError(one_line(e) + " (finished poses kept in the .partial trajectories)") from None
-    interrupted = any(r.interrupted for r in results.values()) or len(results) < len(plan.sequences)
-    runs = []
-    for k, seq in enumerate(plan.sequences):
-        if k not in results:
+        except (DatasetError, ValueError, OSError) as e:
+            for k in ks:
+                partial = partial_path(plan.outputs[k])
+                n = count_poses(partial)
+                runs[k] = SequenceRun(plan.sequences[k], None, partial, None,
+                                      one_line(e) + (f" ({n} finished poses kept in {partial})" if n else ""))
             continue
-        r, out = results[k], plan.outputs[k]
-        if not interrupted:
-            finish(partial_path(out), out)
-        gt = seq.groundtruth
-        errors = trajectory_errors(gt, r.stamps, r.poses, seq.max_dt) if gt is not None else None
-        runs.append(SequenceRun(seq, r, partial_path(out) if interrupted else out, errors))
-    return RunReport(tuple(runs), interrupted)
+        for k, seq, r in zip(ks, seqs, res):
+            runs[k] = _sequence_run(seq, r, plan.outputs[k], seq.max_dt)
+        interrupted = any(r.interrupted for r in res)
+    out = [runs.get(k) or SequenceRun(seq, None, partial_path(plan.outputs[k]), None)
+           for k, seq in enumerate(plan.sequences)]
+    return RunReport(tuple(out), interrupted)

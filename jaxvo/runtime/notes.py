@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 
-__all__ = ["LOGGER", "note_once"]
+__all__ = ["LOGGER", "note_once", "suppress"]
 
 LOGGER = logging.getLogger("jaxvo")
 _GIVEN: set = set()
@@ -23,3 +23,8 @@ def note_once(kind: str, message: str) -> bool:
     _GIVEN.add(kind)
     LOGGER.warning("note: %s", message)
     return True
+
+
+def suppress(kind: str) -> None:
+    """Give no note of this ``kind`` in this process (a command said it in its own words)."""
+    _GIVEN.add(kind)

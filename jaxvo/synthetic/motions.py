@@ -17,6 +17,9 @@ Sequences (:data:`SEQUENCES`):
 * ``seq3``: as seq2 with two persons;
 * ``handheld-fast``: hand-held camera (faster) with a person moving fast and
   close (0.8-1.4 m), covering most of the image at times.
+* ``crowd``: for long runs (drift over hundreds of frames): hand-held camera panning slowly
+  back and forth (+-20 deg over 24 s) and three persons walking on their own paths at 1.2-3.0 m,
+  each 0.5-0.6 m wide, so that at times they cover half the image.
 
 The ground-truth relative motion of a pair (ref, cur) = frames (k, k+1) is
 ``T_cur_ref = inv(T_world_cur) @ T_world_ref`` (:meth:`SyntheticSequence.relative_pose`).
@@ -35,12 +38,12 @@ from jaxvo.synthetic.render import RenderResult, SensorModel, render
 from jaxvo.synthetic.scene import FLOOR_Y, Scene, make_person, make_room
 
 __all__ = [
-    "FixedPose", "PanTilt", "Handheld", "Walk", "SyntheticSequence", "make_sequence", "SEQUENCES", "FPS",
+    "FixedPose", "PanTilt", "Handheld", "Sweep", "Walk", "SyntheticSequence", "make_sequence", "SEQUENCES", "FPS",
     "rot_x", "rot_y",
 ]
 
 FPS = 30.0
-SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast")
+SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast", "crowd")
 
 
 def rot_x(a: float) -> np.ndarray:
@@ -116,6 +119,19 @@ class Handheld:
         x = (amp * (np.sin(2 * np.pi * freq * t + phase) - np.sin(phase))).sum(1)   # 0 at t = 0
         T = _T(geometry.exp_so3(x[:3]), x[3:])
         return np.asarray(self.base, float) @ T
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A hand-held camera (:class:`Handheld`) on a slow pan about the vertical (world y) axis:
+    ``T_world_cam(t) = rot_y(amplitude sin(2 pi t / period)) @ handheld(t)`` (radians, seconds)."""
+    handheld: Handheld
+    amplitude: float = math.radians(20.0)
+    period: float = 24.0
+
+    def pose(self, t: float) -> np.ndarray:
+        return _T(rot_y(self.amplitude * math.sin(2 * np.pi * t / self.period)), (0.0, 0.0, 0.0)) \
+            @ self.handheld.pose(t)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,6 +234,15 @@ def make_sequence(name: str, frames: int = 300, seed: int = 0, *, camera: Camera
         if name == "seq3":
             add_person(Walk((1.3, yc + 0.05, 2.5), (-1.2, yc + 0.05, 2.7), period=rng.uniform(6.0, 8.0),
                             phase=ph + np.pi * 0.7, yaw=np.pi / 2), "box", width=0.55, height=1.8, depth=0.3)
+    elif name == "crowd":
+        cam = Sweep(Handheld(seed=seed, base=tuple(map(tuple, base))))
+        for n in range(3):
+            # each crosses the view on its own path (not following the camera), near ones first
+            z0, z1 = rng.uniform(1.2, 2.0) + 0.5 * n, rng.uniform(1.2, 2.0) + 0.5 * n
+            side = 1.0 if n % 2 == 0 else -1.0
+            add_person(Walk((-1.6 * side, yc, z0), (1.6 * side, yc, z1), period=rng.uniform(6.0, 10.0),
+                            phase=rng.uniform(0, 2 * np.pi)),
+                       "cylinder" if n % 2 == 0 else "box", width=rng.uniform(0.5, 0.6), depth=0.3)
     else:  # handheld-fast
         cam = Handheld(seed=seed, speed=1.6, base=tuple(map(tuple, base)))
         add_person(Walk((-1.0, yc, 1.4), (0.7, yc, 0.8), period=rng.uniform(2.2, 2.8), phase=ph, yaw=np.pi / 2),

@@ -12,7 +12,7 @@ from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame
 from jaxvo.estimator import MotionEstimate, checked_config, checked_key, estimate_motion
-from jaxvo.tracking import segmentation
+from jaxvo.tracking import segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
 class Track(NamedTuple):
@@ -102,6 +102,12 @@ class Odometry:
     carried from reference to reference with the estimated motion and updated from every
     estimate. :func:`track` and ``jaxvo run`` are loops over :meth:`add`.
 
+    The keyframe window (``TrackConfig.window`` keyframes, default 3): a new reference joins it,
+    is estimated against its other keyframes, and the window's poses are refined as a pose graph
+    (:mod:`jaxvo.tracking.window`), so the poses later frames chain from rest on several estimates,
+    not one. A frame that fails against its reference is estimated against the window's older
+    keyframes before it is held (``TrackConfig.recover``). Poses already returned never change.
+
     Frame j (j >= 1) is estimated with key ``jax.random.fold_in(key, j - 1)``; the same key
     and frames give bitwise the same poses. Each result is pulled to the host before the
     next frame (the next reference and initial pose depend on it).
@@ -129,6 +135,10 @@ class Odometry:
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
         self._calm = False              # the reference was chosen in the calm mode (frame to frame)
+        self._window: list = []         # the keyframe window (policy.window > 1), oldest first
+        self._edges: dict = {}          # (a, b) keyframes -> (T_b_a float64, information (6, 6))
+        self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
+        self._info: dict = {}           # frame index -> information of its valid estimate (device array)
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -156,6 +166,9 @@ class Odometry:
         self.static_map.add(j, frame)
         if j == 0:
             self.poses.append(self._first)
+            if self.policy.window > 1:
+                self._window = [0]
+                window.compile_ahead(self.policy.window)
             return None
         T_world_ref = self._chain_pose(self._ref)
         T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
@@ -178,20 +191,48 @@ class Odometry:
         judged = self._judge(est, T_ref_prev, weights, extra)
         if not judged.valid and policy.retry:
             est, judged = self._retry(pair, est, judged, extra)
+        used = ref
+        if not judged.valid and policy.recover and policy.window > 1:
+            used, est, judged = self._recover(pair, est, judged, extra)
         T, ratio, ratio_static, valid, dynamic = judged
-        pose = self._held(j) if not valid and policy.hold_invalid else T_world_ref @ geometry.inverse(T)
+        pose = self._held(j) if not valid and policy.hold_invalid else self._chain_pose(used) @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
         self.inlier_ratio.append(ratio)
-        self.references.append(ref)
+        self.references.append(used)
         if valid:
             self._rel[j] = T
-        static_mask = self.static_map.static_mask(weights, frame.depth.shape)
-        if valid:  # the current frame's view of the reference, at the estimated pose
+            self._info[j] = est.information
+        static_mask = self.static_map.static_mask(weights if used == ref else self._key_trust[used][0],
+                                                  frame.depth.shape)
+        if valid and used == ref:  # the current frame's view of the reference, at the estimated pose
             self.static_map.update(est, ref, j, T)
-        result = TrackStep(j, ref, est, pose, valid, static_mask)
+        result = TrackStep(j, used, est, pose, valid, static_mask)
+        if used != ref:   # the switch tests read the motion from the current reference
+            T = geometry.inverse(pose) @ T_world_ref
         self._maybe_switch(j, T, ratio_static, dynamic)
         return result
+
+    def _recover(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
+        """(reference, estimate, judgement) for a frame whose estimate against the reference failed
+        (``TrackConfig.recover``): the frame estimated against the window's older keyframes, newest
+        first, from its guessed pose, each with the keyframe's static weights; the first that
+        passes is kept. A frame that a person hides from the reference may still see what an
+        earlier keyframe saw, and its pose then needs no coasting. (ref, est, judged) as they were
+        where none passes."""
+        j, ref = len(self.poses), self._ref
+        guess = self._chain_pose(ref) @ pair.T_ref_prev        # T_world_guess: the previous frame's pose
+        keys = jax.random.fold_in(pair.key, 3)   # apart from the frame's own key (and the retry's)
+        for n, k in enumerate(reversed([k for k in self._window if k != ref and k in self._key_trust])):
+            key = jax.random.fold_in(keys, n)
+            T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
+            trust, calm = self._key_trust[k]
+            again = estimate_motion(self._frames[k], pair.cur, self.camera, self.config, key,
+                                    init=geometry.inverse(T_k_prev), weights=None if calm else trust)
+            judged_again = self._judge(again, T_k_prev, trust, extra)
+            if judged_again.valid:
+                return k, again, judged_again
+        return ref, est, judged
 
     def _retry(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
         """(estimate, :meth:`_judge` of it) for a frame whose estimate ``est`` failed: the pair
@@ -230,12 +271,13 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights):
+    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights, trust=None):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess). Returns (estimate, :meth:`_judge` of it)."""
+        (float64 T_ref_guess) with ``weights``. Returns (estimate, :meth:`_judge` of it with the
+        reference's static weights ``trust``, default ``weights``)."""
         est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
                               init=geometry.inverse(T_ref_prev), weights=weights)
-        return est, self._judge(est, T_ref_prev, weights)
+        return est, self._judge(est, T_ref_prev, weights if trust is None else trust)
 
     def _stale_allowance(self):
         """(metres, degrees) the camera may have moved beyond one frame's step while the latest
@@ -331,19 +373,87 @@ class Odometry:
             elif j - ref >= policy.restart:
                 self._set_reference(j - policy.lag, j)  # lost for long: restart from the held poses
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
-        for old in [i for i in self._frames if i < self._ref]:
+        for old in [i for i in self._frames if i < self._ref and i not in self._window]:
             del self._frames[old]
+        for old in [i for i in self._info if i < self._ref - 2 * policy.max_gap]:
+            del self._info[old]
+        for old in [i for i in self._key_trust if i not in self._window]:
+            del self._key_trust[old]
         self.static_map.forget(keep_depth)
         for d in (self._anchor, self._rel):   # estimates against the last references only
-            for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap]:
+            for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap and i not in self._window]:
                 del d[old]
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
-        self._anchor[new] = self._fused_anchor(new, j)
+        if old in self._window:   # its weights serve the estimates against it while it stays in the window
+            self._key_trust[old] = (self.static_map.trust(tuple(self._frames[old].depth.shape)), self._calm)
+        # a held frame (restart) has no pose of its own to refine and must not push keyframes out
+        if self.policy.window > 1 and self.valid[new - 1] and new - self._window[-1] >= self.policy.lag:
+            self._anchor[new] = self._windowed_anchor(new)
+        else:
+            self._anchor[new] = self._fused_anchor(new, j)
         self._ref = new
         self.static_map.new_reference(old, new, j, self.policy.history, self._chain_pose, self.valid,
                                       self.view_pose)
+
+    def _windowed_anchor(self, new: int) -> np.ndarray:
+        """The pose later frames chain from when ``new`` becomes the reference and joins the
+        keyframe window (``TrackConfig.window``), which then drops its oldest keyframe if full.
+
+        ``new`` is estimated against every keyframe of the window except its own reference (whose
+        estimate is already there: the chained, smoothed pose, :meth:`_smoothed`), each with that
+        keyframe's static weights, from the chained pose; the ones that pass :meth:`_judge` join
+        the window's edges. Then the window's poses are refined as a pose graph
+        (:func:`jaxvo.tracking.window.refine`, the oldest keyframe fixed) and each keyframe's
+        anchor replaced by its refined pose. One bad estimate between two keyframes is then
+        outweighed by the others, and the chain's error grows per window rather than per keyframe."""
+        policy = self.policy
+        pose = self._smoothed(new)
+        # the keyframes that stay in the window beside new
+        members = [k for k in self._window[-(policy.window - 1):] if k in self._key_trust]
+        edges = {}
+        if members and new in self._info:
+            # the chain back to a keyframe of the window: frame new's own estimate (smoothed, fitted
+            # with its neighbours) where its reference is one, else through the references between
+            # (frame to frame while calm), each hop adding an error like new's own
+            f, hops = new, 0
+            while f > members[0] and f not in members:
+                f, hops = self.references[f - 1], hops + 1
+            if f in members:
+                edges[(f, new)] = (geometry.inverse(pose) @ self._chain_pose(f), self._info[new] / hops)
+        keys = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 2)   # apart from frame new's own key
+        for n, k in enumerate(reversed(members)):
+            if (k, new) in edges:
+                continue
+            key = jax.random.fold_in(keys, n)
+            T_k_new = geometry.inverse(self._chain_pose(k)) @ pose
+            trust, calm = self._key_trust[k]
+            est, judged = self._estimate_against(k, self._frames[new], key, T_k_new, None if calm else trust, trust)
+            if judged.valid:
+                edges[(k, new)] = (judged.T, est.information)
+        self._edges.update({e: (Z, np.asarray(info, np.float64)) for e, (Z, info) in edges.items()})
+        self._window = (self._window + [new])[-policy.window:]
+        nodes = self._window
+        index = {k: i for i, k in enumerate(nodes)}
+        graph_edges = {(index[a], index[b]): v for (a, b), v in self._edges.items() if a in index and b in index}
+        for e in [e for e in self._edges if e[0] not in index]:
+            del self._edges[e]
+        if len(nodes) < 2 or not graph_edges:
+            return pose
+        anchors = [self._chain_pose(k) for k in nodes[:-1]] + [pose]
+        refined = window.refine(anchors, graph_edges, policy.window)
+        # the frames after new start from the previous frame's pose relative to new's anchor: a
+        # correction near the per-frame step limits would make their estimates look like jumps and
+        # fail, so a window that disagrees that much with its chain is left as chained
+        moved = geometry.inverse(pose) @ refined[-1]
+        if (np.linalg.norm(moved[:3, 3]) > 0.5 * policy.max_step
+                or geometry.rotation_angle(moved[:3, :3]) > np.radians(0.5 * policy.max_step_deg)):
+            return pose
+        for k, P in zip(nodes[:-1], refined[:-1]):
+            if k != nodes[0]:
+                self._anchor[k] = P
+        return refined[-1]
 
     def view_pose(self, view: int, new: int, T_world_new: np.ndarray) -> np.ndarray:
         """T_view_new (4, 4) float32, the pose at which the new reference ``new`` (camera-to-world

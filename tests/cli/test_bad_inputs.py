@@ -104,6 +104,21 @@ def _masked_gt_file(c: Case):
     return ["eval", c.gt, c.est, "--delta-unit", "f", "--masks-dir", c.root]
 
 
+def _size_640(text: str) -> str:
+    return text.replace('"width": 160', '"width": 640').replace('"height": 120', '"height": 480')
+
+
+def _copy(c: Case, name: str) -> Path:
+    shutil.copytree(c.seq, c.root / name)
+    return c.root / name
+
+
+def _header(c: Case, sequence: str, seed: str = "0"):
+    """``jaxvo run --config`` of a trajectory whose header has the ``# sequence:`` entry given."""
+    h = c.write("h.txt", f"# config: {{}}\n# seed: {seed}\n# sequence: {sequence}\n0.0 0 0 0 0 0 0 1\n")
+    return ["run", c.seq, "--config", h, "--out", c.root / "t.txt"]
+
+
 _MOVED_EST = "\n".join(f"{100 + i:.6f} 0 0 0 0 0 0 1" for i in range(5)) + "\n"
 
 CLI_CASES = [
@@ -126,7 +141,9 @@ CLI_CASES = [
     ("run-info-json-bad-fx", lambda c: ["run", c.edit("info.json", lambda t: t.replace('"fx": 131.25', '"fx": -1')),
                                         "--out", c.root / "t.txt"], "Camera.fx must be a number > 0"),
     ("run-camera-size-mismatch", lambda c: ["run", c.seq, "--camera", "fr1", "--out", c.root / "t.txt"],
-     "does not match"),
+     "the preset fr1 is for 640x480; leave --camera out"),
+    ("run-calibration-size-mismatch", lambda c: ["run", c.edit("info.json", _size_640), "--out", c.root / "t.txt"],
+     "are for 640x480; write them for 160x120"),
     # --- run: outputs that would destroy inputs
     ("run-out-groundtruth", lambda c: ["run", c.seq, "--out", c.gt], "the input"),
     ("run-out-inside-seq", lambda c: ["run", c.seq, "--out", c.seq / "traj.txt"], "lies inside the input"),
@@ -136,6 +153,19 @@ CLI_CASES = [
     ("run-masks-into-true-masks", lambda c: ["run", c.seq, "--save-masks", c.seq / "masks", "--out", c.root / "t"],
      "--save-masks"),
     ("run-out-under-a-file", lambda c: ["run", c.seq, "--out", c.est / "t.txt"], "is a file, not a folder"),
+    ("run-save-masks-nonempty", lambda c: ["run", c.seq, "--save-masks", c.write("m/keep.png", "x").parent,
+                                           "--out", c.root / "t"], "--save-masks"),
+    ("run-batch-out-dir-is-seq", lambda c: ["run", c.seq, _copy(c, "seq2"), "--out-dir", c.seq],
+     "lies inside"),
+    # --- run: a trajectory header with wrong types
+    ("header-frames-str", lambda c: _header(c, '{"frames": "all"}'), 'header field "frames" must be an integer'),
+    ("header-depth-scale-str", lambda c: _header(c, '{"depth_scale": "5000"}'), '"depth_scale" must be a number'),
+    ("header-start-negative", lambda c: _header(c, '{"start": -1}'), '"start" must be an integer >= 0'),
+    ("header-max-dt-bool", lambda c: _header(c, '{"max_dt": true}'), '"max_dt" must be a number'),
+    ("header-camera-list", lambda c: _header(c, '{"camera": [1, 2]}'), '"camera" must be a JSON object'),
+    ("header-fx-str", lambda c: _header(c, '{"camera": {"fx": "525"}}'), '"camera.fx" must be a number'),
+    ("header-seed-str", lambda c: _header(c, '{}', seed='"0"'), 'header field "seed" must be an integer'),
+    ("header-sequence-list", lambda c: _header(c, '[1]'), "'# sequence:' header: expected a JSON object"),
     # --- run: options
     ("run-seed-overflow", lambda c: ["run", c.seq, "--seed", "99999999999999999999999"], "--seed"),
     ("run-seed-negative", lambda c: ["run", c.seq, "--seed", "-1"], "--seed"),
@@ -210,6 +240,24 @@ CLI_CASES = [
                                           c.root / "m.ply"], "repeats line 1"),
     ("map-every-zero", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--every", 0], "--every"),
     ("map-seed-overflow", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--seed", str(2 ** 70)], "--seed"),
+    ("map-outliers-and-hindsight", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--outliers", "--hindsight"],
+     "exclude each other"),
+    ("map-camera-size-mismatch", lambda c: ["map", c.seq, c.est, c.root / "m.ply", "--camera", "bonn"],
+     "leave --camera out"),
+    # --- masks
+    ("masks-camera-size-mismatch", lambda c: ["masks", c.seq, c.est, c.root / "mm", "--camera", "fr2"],
+     "leave --camera out"),
+    ("masks-out-inside-seq", lambda c: ["masks", c.seq, c.est, c.seq / "mm"], "lies inside the input"),
+    ("masks-out-nonempty", lambda c: ["masks", c.seq, c.est, c.write("o/x", "keep").parent], "not empty"),
+    # --- gt
+    ("gt-out-is-groundtruth", lambda c: ["gt", c.seq, "-o", c.gt], "lies inside the input"),
+    ("gt-out-inside-seq", lambda c: ["gt", c.seq, "-o", c.seq / "gt_cam.txt"], "lies inside the input"),
+    ("gt-out-is-seq", lambda c: ["gt", c.seq, "-o", c.seq], "is a directory"),
+    ("gt-out-under-a-file", lambda c: ["gt", c.seq, "-o", c.est / "gt.txt"], "is a file, not a folder"),
+    # --- demo
+    ("demo-foreign-sequence-folder", lambda c: ["demo", "--out", c.write("d/sequence/mine.txt", "keep").parents[1],
+                                                "--frames", 3, "--no-progress"], "was not written by jaxvo"),
+    ("demo-out-is-file", lambda c: ["demo", "--out", c.est, "--frames", 3, "--no-progress"], "est.txt"),
     # --- synth
     ("synth-into-sequence", lambda c: ["synth", "seq1", c.seq, "--frames", 2, "--size", "160x120"], "not empty"),
     ("synth-into-file", lambda c: ["synth", "seq1", c.est, "--frames", 2], "is a file"),
@@ -353,12 +401,83 @@ def test_failure_half_way_keeps_the_finished_poses(tmp_path, base_seq):
     r = CliRunner().invoke(main, ["run", str(c.seq), "--out", str(out), "--method", "classic", "--no-progress"],
                            catch_exceptions=False)
     assert r.exit_code == 2, r.output
-    err = r.stderr.strip().splitlines()
+    err = [ln for ln in r.stderr.strip().splitlines() if not ln.startswith("note:")]
     assert len(err) == 2 and err[0].startswith("jaxvo run:"), r.stderr
     assert "does not decode" in err[1] and "3 finished poses kept in" in err[1] and "t.txt.partial" in err[1]
     assert not out.exists()
     stamps, _ = read_tum_trajectory(tmp_path / "t.txt.partial")
     assert len(stamps) == 3
+
+
+def _masks(c: Case, dtype) -> Path:
+    """A user-mask folder, one PNG per colour frame named like it, every pixel 0 (8-bit) or 1 (16-bit)."""
+    import cv2
+    d = c.root / "masks"
+    d.mkdir()
+    for ln in (c.seq / "rgb.txt").read_text().splitlines():
+        if ln and not ln.startswith("#"):
+            cv2.imwrite(str(d / Path(ln.split()[1]).name), np.full((120, 160), 0 if dtype == np.uint8 else 1, dtype))
+    return d
+
+
+def _batch_bad_frame(c: Case):
+    other = _copy(c, "other")
+    lines = [ln for ln in (other / "rgb.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+    _truncate(other / lines[3].split()[1])
+    return ["run", c.seq, other, "--out-dir", c.root / "out"]
+
+
+#: runs that get going: (id, arguments, exit code, message fragment, trajectories kept: name -> poses)
+RUN_CASES = [
+    ("batch-bad-frame-stops-only-its-sequence", _batch_bad_frame, 2, "does not decode",
+     {"out/seq.txt": 5, "out/other.txt.partial": 3}),
+    ("masks-hide-every-pixel", lambda c: ["run", c.seq, "--mask-dir", _masks(c, np.uint8), "--out", c.root / "t.txt"],
+     2, "leave 0.0 % of the pixels", {"t.txt": 5}),
+    ("masks-16-bit-0-1", lambda c: ["run", c.seq, "--mask-dir", _masks(c, np.uint16), "--out", c.root / "t.txt"],
+     2, "a 16-bit 0/1 mask reads as all 0", {"t.txt": 5}),
+]
+
+
+@pytest.mark.parametrize("build, code, fragment, kept", [c[1:] for c in RUN_CASES], ids=[c[0] for c in RUN_CASES])
+def test_run_that_gets_going_keeps_what_finished(tmp_path, base_seq, build, code, fragment, kept):
+    """A run that fails or produces nothing usable: one error line with the likely cause, its exit
+    code, every finished trajectory kept (a complete one under its name, a stopped one as
+    .partial), a summary line per sequence and the inputs untouched."""
+    c = Case(tmp_path, base_seq)
+    args = [str(a) for a in build(c)] + ["--method", "classic", "--no-progress"]
+    before = {d: _snapshot(d) for d in tmp_path.iterdir() if d.is_dir()}
+    r = CliRunner().invoke(main, args, catch_exceptions=False)
+    assert r.exit_code == code, r.output
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and fragment in errors[0], r.stderr
+    assert "Traceback" not in r.output
+    for name, n in kept.items():
+        assert len(read_tum_trajectory(tmp_path / name)[0]) == n, name
+        if name.endswith(".partial"):
+            assert not (tmp_path / name[:-len(".partial")]).exists(), name
+    if len(kept) > 1:
+        assert [ln.split(":")[0] for ln in r.stdout.splitlines()] == ["seq", "other"], r.stdout
+    assert {d: _snapshot(d) for d in before} == before
+
+
+def test_interrupted_demo_keeps_the_previous_files(tmp_path):
+    """Ctrl-C while the demo renders: the previous complete trajectory and sequence stay as they
+    were; only .partial names hold the unfinished work."""
+    from jaxvo.pipelines.demo import run_demo
+    from jaxvo.synthetic import generate
+
+    out = tmp_path / "demo"
+    generate("seq1", out / "sequence", frames=3, seed=1, camera=CAM)       # jaxvo's, another scene
+    (out / "traj_classic.txt").write_text("# complete\n0.0 0 0 0 0 0 0 1\n")
+    before = _snapshot(out)
+
+    def stop():
+        raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        run_demo(out, frames=4, seq_name="seq2", size="64x48", progress=False, methods=("classic",), check=stop)
+    after = _snapshot(out)
+    assert {k: after.get(k) for k in before} == before
+    assert (out / "sequence.partial").is_dir()
 
 
 def _proc(args, **kw):

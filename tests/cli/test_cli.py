@@ -346,14 +346,17 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
     np.testing.assert_allclose(stamps, seq.timestamps, atol=1e-6)
     np.testing.assert_allclose(poses, tr.poses, atol=2e-6)
     files = sorted(masks.glob("*.png"))
-    refs = sorted(set(tr.reference.tolist()))      # one mask per reference frame
-    assert [f.stem for f in files] == [f"{seq.timestamps[i]:.6f}" for i in refs]
+    # one mask per pair, named by its reference and current frame, listed in the index
+    names = [f"{seq.timestamps[r]:.6f}-{seq.timestamps[k + 1]:.6f}.png" for k, r in enumerate(tr.reference)]
+    assert [f.name for f in files] == sorted(names)
+    index = [ln.split() for ln in (masks / "masks.txt").read_text().splitlines() if not ln.startswith("#")]
+    assert [row[1] for row in index] == names
     m = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
     assert m.shape == (120, 160) and m.dtype == np.uint8 and set(np.unique(m)) <= {0, 255}
     # eval scores the saved masks against the sequence's true moving-pixel masks
     r = _invoke(["eval", synth_seq, traj, "--delta-unit", "f", "--masks-dir", masks])
     assert r.exit_code == 0, r.output
-    assert "precision" in r.stdout and "recall" in r.stdout and f"({len(refs)} frames)" in r.stdout
+    assert "precision" in r.stdout and "recall" in r.stdout and f"({len(names)} frames)" in r.stdout
     # 6 frames span 0.17 s: with the delta left at its default (1 s) eval measures over 1 frame and
     # says so, as jaxvo run does; a delta the user asked for is not changed behind their back
     r2 = _invoke(["eval", synth_seq, traj, "--masks-dir", masks])
@@ -390,8 +393,8 @@ def test_keyframe_options(tmp_path, synth_seq):
     r = _invoke(["run", synth_seq, "--max-frames", 6, "--keyframe-gap", 3, "--out", tmp_path / "t.txt",
                  "--save-masks", masks, "--no-progress"])
     assert r.exit_code == 0, r.output
-    # references 0 (frames 1-3) then 2 (frames 4-5): one mask per reference, on its pixels
-    assert len(list(masks.glob("*.png"))) == 2
+    # references 0 (frames 1-3) then 2 (frames 4-5): one mask per pair, on its reference's pixels
+    assert sorted(p.name.split("-")[0] for p in masks.glob("*.png")) == ["0.000000"] * 3 + ["0.066667"] * 2
 
 
 @pytest.mark.parametrize("args, code, text", [(["--version"], 0, "jaxvo, version"),

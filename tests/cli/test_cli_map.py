@@ -7,7 +7,7 @@ from click.testing import CliRunner
 
 from jaxvo.camera import DEFAULT
 from jaxvo.cli.main import main
-from jaxvo.data.ply import read_ply
+from jaxvo.data.ply import read_ply, read_ply_vertices
 from jaxvo.pipelines.mapping import MOVING_COLOUR
 from jaxvo.data.trajectory import read_tum_trajectory, write_tum_trajectory
 
@@ -25,10 +25,20 @@ def seq(tmp_path_factory):
     return d
 
 
+@pytest.mark.parametrize("labels, said", [([], "labels hindsight"), (["--no-labels"], "labels none")])
+def test_map_default_labels_are_the_segmentation_stored_as_a_property(seq, tmp_path, labels, said):
+    out = tmp_path / "map.ply"
+    r = _runner().invoke(main, ["map", str(seq), str(seq.parent / "traj.txt"), str(out), "--every", "1",
+                                "--no-progress", *labels])
+    assert r.exit_code == 0, r.output + r.stderr
+    assert said in r.stderr
+    assert ("moving" in read_ply_vertices(out)) == (not labels)
+
+
 def test_map_estimated_labels(seq, tmp_path):
     out, png = tmp_path / "map.ply", tmp_path / "map.png"
     r = _runner().invoke(main, ["map", str(seq), str(seq.parent / "traj.txt"), str(out), "--every", "1",
-                                "--method", "classic", "--preview", str(png), "--no-progress"])
+                                "--method", "classic", "--outliers", "--preview", str(png), "--no-progress"])
     assert r.exit_code == 0, r.output + r.stderr
     P, C = read_ply(out)
     assert len(P) > 1000 and C.shape == P.shape
@@ -45,6 +55,7 @@ def test_map_masks_colours_moving_points(seq, tmp_path):
     P, C = read_ply(out)
     green = np.all(C == np.asarray(MOVING_COLOUR, np.uint8), axis=1)
     assert 0 < green.sum() < len(P)
+    np.testing.assert_array_equal(read_ply_vertices(out)["moving"], green)
     assert "frames        1 used (every 5 of 2" in r.output
 
 

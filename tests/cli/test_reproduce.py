@@ -119,3 +119,45 @@ def test_machine_differences_name_only_fields_both_records_have():
 
     assert differences({"cpu": "A", "cores": 2}, {"cpu": "A", "cores": 2}) == []
     assert differences({"cpu": "A", "cores": 2, "gone": 1}, {"cpu": "B", "cores": 2, "new": 3}) == ["cpu: A -> B"]
+
+
+def test_config_from_a_trajectory_says_where_each_setting_came_from(tmp_path):
+    """--config TRAJ: a 'settings' line names the file (or the command line) per setting, the
+    intrinsics are labelled as the header's, one note lists what an older header lacked (filled
+    with today's defaults), one says when the header was written for another sequence. The
+    progress bar's last rate is the summary's frames/s."""
+    import re
+
+    from jaxvo.camera import DEFAULT
+    from jaxvo.synthetic import generate
+
+    seq, other = tmp_path / "seq", tmp_path / "other"
+    generate("seq1", seq, frames=4, seed=1, camera=DEFAULT.at_level(2))
+    generate("seq1", other, frames=4, seed=2, camera=DEFAULT.at_level(2))
+    first = tmp_path / "first.txt"
+    r = CliRunner().invoke(main, ["run", str(seq), "--out", str(first), "--method", "classic"])
+    assert r.exit_code == 0, r.output
+    bar_fps = re.findall(r"fps=([0-9.]+)", r.stderr)[-1]
+    assert f"speed         {bar_fps} frames/s" in r.stdout
+
+    lines = first.read_text().splitlines()
+    older = tmp_path / "older.txt"
+    config = json.loads(next(ln for ln in lines if ln.startswith("# config:")).split(": ", 1)[1])
+    del config["n_points"]
+    older.write_text("\n".join(f"# config: {json.dumps(config)}" if ln.startswith("# config:") else ln
+                               for ln in lines if not ln.startswith("# track:")) + "\n")
+    r = CliRunner().invoke(main, ["run", str(seq), "--config", str(older), "--start", "1", "--out",
+                                  str(tmp_path / "o.txt"), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    settings = [ln for ln in r.stderr.splitlines() if ln.startswith("settings")]
+    assert len(settings) == 1 and f"frames: {older}" in settings[0] and "start: the command line" in settings[0]
+    assert f"camera: {older}" in settings[0]
+    assert f"(from the header of {older})" in r.stderr
+    notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note:") and "lacks" in ln]
+    assert len(notes) == 1 and "config.n_points" in notes[0] and "track.max_gap" in notes[0], r.stderr
+    assert "sequence." not in notes[0] and "written for" not in r.stderr
+
+    r = CliRunner().invoke(main, ["run", str(other), "--config", str(first), "--out", str(tmp_path / "x.txt"),
+                                  "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert f"note: {first} was written for {seq}" in r.stderr and "lacks" not in r.stderr

@@ -29,6 +29,10 @@ def test_ply_round_trip(tmp_path):
     assert P2.shape == (1234, 3) and C2.shape == (1234, 3)
     np.testing.assert_array_equal(P2.astype(np.float32), P)
     np.testing.assert_array_equal(C2, C)
+    moving = rng.random(1234) < 0.3
+    v = ply.read_ply_vertices(ply.write_ply(tmp_path / "m.ply", P, C, moving))
+    np.testing.assert_array_equal(v["moving"], moving)
+    assert "moving" not in ply.read_ply_vertices(path)
     try:
         import open3d as o3d
     except Exception:  # optional peer

@@ -58,12 +58,14 @@ def test_setup_run_merges_a_trajectory_header_under_the_options_given(tmp_path, 
     s = setup_run(traj)
     assert isinstance(s, RunSetup) and s.seed == 7 and s.config.method == "huber" and s.policy.max_gap == 3
     assert s.reader == ReaderOptions(fx=CAM.fx, fy=CAM.fy, cx=CAM.cx, cy=CAM.cy, depth_scale=5000.0, max_dt=0.03,
-                                     start=1, max_frames=2)
-    assert s.machine_differences == ()
+                                     start=1, max_frames=2, camera_from=f"the header of {traj}")
+    assert s.machine_differences == () and s.missing == () and s.header_sequence == str(a)
+    assert f"frames: {traj}" in s.sources and f"camera: {traj}" in s.sources
     _frozen(s)
     given = setup_run(traj, seed=3, start=0, method="classic", camera_preset="fr1")
     assert given.seed == 3 and given.reader.start == 0 and given.config.method == "classic"
     assert given.reader.camera_preset == "fr1" and given.reader.fx is None     # a preset replaces the header's
+    assert "start: the command line" in given.sources and "camera: the command line" in given.sources
     many = setup_run(traj, from_header=False)
     assert many.seed == 7 and many.reader == ReaderOptions()
     plain = setup_run(paper=True)
