@@ -17,6 +17,10 @@ the reference (earlier) camera into the current one; trajectories are
 ``T_world_cam`` (camera-to-world, as in TUM files); intensity 0-255, depth in
 metres (0 = invalid); pixels u = column, v = row, centres at integers.
 
+Compiled programs are kept in ``$JAXVO_CACHE_DIR`` (default ``~/.cache/jaxvo``;
+``JAXVO_CACHE_DIR=off`` turns it off, ``jaxvo.cache.enable(DIR)`` / ``jaxvo.cache.disable()``
+do it from a program): a later process loads them instead of compiling (:mod:`jaxvo.runtime.cache`).
+
 The packages, in data-flow order (each imports only from those before it):
 :mod:`jaxvo.estimator` (two frames in, one :class:`MotionEstimate` out),
 :mod:`jaxvo.tracking` (frames in, poses out), :mod:`jaxvo.data` (recordings, trajectories and
@@ -25,6 +29,11 @@ against ground truth, peers), :mod:`jaxvo.pipelines` (what each command does) an
 :mod:`jaxvo.cli` (the command line), over the maths and settings at the top level
 (:mod:`jaxvo.geometry`, :mod:`jaxvo.camera`, :mod:`jaxvo.frame`, :mod:`jaxvo.config`).
 """
+# the persistent compilation cache, on unless JAXVO_CACHE_DIR=off: before anything compiles,
+# so that every program is kept; jaxvo.cache.enable(DIR) / disable() move it or turn it off
+from jaxvo.runtime import cache
+
+cache.use_default()
 # maths, intrinsics, frames, settings
 from jaxvo import geometry
 from jaxvo.camera import BONN, DEFAULT, PRESETS, TUM_FR1, TUM_FR2, TUM_FR3, Camera, camera_for_sequence
@@ -45,7 +54,8 @@ from jaxvo.evaluation.scoring import evaluate, trajectory_errors
 from jaxvo.pipelines.run import RunResult, load_config, load_sequence, run_sequence
 
 __all__ = [
-    "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT",
+    "cache", "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN",
+    "DEFAULT",
     "METHODS", "Config", "TrackConfig", "Frame", "make_frame",
     "MotionEstimate", "TrustStats", "estimate_motion", "explain_validity",
     "Odometry", "Track", "TrackStep", "track", "HindsightParams", "hindsight_masks",

@@ -9,15 +9,42 @@ A :class:`Frame` holds
 :func:`make_frame` builds one from what readers produce (uint8 colour or grey,
 uint16 depth in sensor units, or float metres) and checks it, raising a
 ``ValueError`` that names the problem (and the source, when given) instead of
-letting a bad array reach jit-compiled code.
+letting a bad array reach jit-compiled code. Two things it cannot guess are explicit:
+the colour order (``color_order="bgr"`` or :meth:`Frame.from_cv2` for ``cv2.imread``
+images) and the depth scale of integer depth (``depth_scale``; without it integer depth is
+an error naming the scale that fits, :func:`suggest_depth_scale`, shared with the
+sequence readers' check of a recording's first frame).
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Optional
+from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["Frame", "make_frame", "luminance", "validate_pair"]
+from jaxvo.validation import check_values, choice, number
+
+__all__ = ["Frame", "make_frame", "luminance", "validate_pair", "check_frame", "suggest_depth_scale",
+           "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
+
+#: where a median valid depth (metres) is taken as plausible for an RGB-D camera
+PLAUSIBLE_DEPTH = (0.2, 10.0)
+#: depth scales of common sensors and formats (sensor value / scale = metres): millimetres
+#: (Kinect v2, RealSense, Redwood), TUM / Bonn / ETH3D PNGs, 0.1 mm, 0.25 mm, centimetres, metres
+COMMON_DEPTH_SCALES = (1000.0, 5000.0, 10000.0, 4000.0, 100.0, 1.0)
+#: channel orders of colour images: "rgb" (imageio, PIL, matplotlib), "bgr" (OpenCV's cv2.imread)
+COLOR_ORDERS = ("rgb", "bgr")
+_ORDER_RULE = {"color_order": choice(*COLOR_ORDERS)}
+_SCALE_RULE = {"depth_scale": number(0, lo_open=True, none_means="float depth in metres")}
+
+
+def suggest_depth_scale(raw_median: float, exclude: Optional[float] = None) -> float:
+    """The depth scale (sensor value / scale = metres) to suggest for depth whose median valid raw
+    value is ``raw_median``: of :data:`COMMON_DEPTH_SCALES` (but ``exclude``, the scale that
+    failed) the one that puts the median inside :data:`PLAUSIBLE_DEPTH`, nearest 2 m (a typical
+    indoor median); if none does, the scale that puts it at 2 m."""
+    lo, hi = PLAUSIBLE_DEPTH
+    fits = [c for c in COMMON_DEPTH_SCALES if c != exclude and lo <= raw_median / c <= hi]
+    return min(fits, key=lambda c: abs(np.log(raw_median / c / 2.0))) if fits else raw_median / 2.0
 
 
 class Frame(NamedTuple):
@@ -35,6 +62,13 @@ class Frame(NamedTuple):
     def shape(self):
         return tuple(self.intensity.shape)
 
+    @classmethod
+    def from_cv2(cls, image, depth, depth_scale: Optional[float] = None, **kwargs) -> "Frame":
+        """:func:`make_frame` of a colour image in OpenCV's BGR order (``cv2.imread``,
+        ``cv2.VideoCapture``): ``Frame.from_cv2(cv2.imread(c), cv2.imread(d, cv2.IMREAD_UNCHANGED), 5000)``.
+        ``kwargs``: ``source``, ``mask``."""
+        return make_frame(image, depth, depth_scale, color_order="bgr", **kwargs)
+
 
 def luminance(image: np.ndarray, order: str = "rgb") -> np.ndarray:
     """(H, W, 3) colour (or (H, W) grey) -> (H, W) float32 luminance, ITU-R BT.601 weights.
@@ -42,6 +76,7 @@ def luminance(image: np.ndarray, order: str = "rgb") -> np.ndarray:
     ``order`` is the channel order of ``image``: "rgb", or "bgr" for what
     ``cv2.imread`` returns. uint16 colour is rescaled to 0-255.
     """
+    check_values({"color_order": order}, _ORDER_RULE, "luminance")
     img = np.asarray(image)
     scale = 255.0 / 65535.0 if img.dtype == np.uint16 else 1.0
     img = img.astype(np.float32) * np.float32(scale)
@@ -61,17 +96,24 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
 
     Args:
       image: (H, W, 3) colour or (H, W) grey; uint8 (0-255), uint16, or float already on 0-255.
-      depth: (H, W) depth. Integer depth is divided by ``depth_scale`` (default 5000, the TUM
-        factor: value / 5000 = metres); float depth is taken as metres unless ``depth_scale``
-        is given. NaN, inf and negative values become 0 (invalid).
+      depth: (H, W) depth. Integer depth (sensor units, e.g. uint16 PNGs) needs ``depth_scale``:
+        value / depth_scale = metres (5000 for TUM, Bonn and ETH3D PNGs, 1000 for millimetres);
+        without it the ValueError names the scale that fits. Float depth is metres, or is
+        divided by ``depth_scale`` when one is given. NaN, inf and negative values become 0
+        (invalid).
+      color_order: "rgb" (default), or "bgr" for OpenCV images (``cv2.imread``); the same as
+        :meth:`Frame.from_cv2`. Grey images ignore it.
       source: a name (e.g. the file) to put in error messages.
       mask: optional (H, W) usable-pixel mask (nonzero = usable), see :class:`Frame`.
 
     Raises:
-      ValueError: wrong shapes or dtypes, mismatched sizes, no valid depth at all, or depth
-        whose range says the scale is wrong (e.g. millimetres passed as metres).
+      ValueError: wrong shapes or dtypes, mismatched sizes, an unknown color_order, integer
+        depth without depth_scale, no valid depth at all, or depth whose range says the scale
+        is wrong (e.g. millimetres passed as metres).
     """
     where = f"{source}: " if source else ""
+    check_values({"color_order": color_order}, _ORDER_RULE, f"{where}make_frame")
+    check_values({"depth_scale": depth_scale}, _SCALE_RULE, f"{where}make_frame")
     img = np.asarray(image)
     d = np.asarray(depth)
     if img.dtype == object or d.dtype == object:
@@ -86,20 +128,24 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
         raise ValueError(f"{where}image size {img.shape[1]}x{img.shape[0]} does not match "
                          f"depth size {d.shape[1]}x{d.shape[0]}")
     inten = luminance(img, color_order)
-    if np.issubdtype(d.dtype, np.integer):
-        z = d.astype(np.float32) / np.float32(5000.0 if depth_scale is None else depth_scale)
-    else:
-        z = d.astype(np.float32)
-        if depth_scale is not None:
-            z = z / np.float32(depth_scale)
+    z = d.astype(np.float32)
+    if depth_scale is not None:
+        z = z / np.float32(depth_scale)
     z = np.where(np.isfinite(z) & (z > 0), z, 0.0).astype(np.float32)
     valid = z > 0
     if not valid.any():
         raise ValueError(f"{where}depth has no valid pixel (all zero, negative or NaN)")
     med = float(np.median(z[valid]))
+    if depth_scale is None and np.issubdtype(d.dtype, np.integer):
+        s = suggest_depth_scale(med)
+        raise ValueError(f"{where}depth is {d.dtype} (sensor units) and no depth_scale was given: pass "
+                         f"depth_scale={s:g} (value / {s:g} = metres: median {med / s:.2f} m); 5000 for TUM, "
+                         f"Bonn and ETH3D PNGs, 1000 for millimetres")
     if med > 100.0:
+        raw = med * (1.0 if depth_scale is None else float(depth_scale))
+        s = suggest_depth_scale(raw, exclude=depth_scale)
         raise ValueError(f"{where}depth looks like it has the wrong scale: median {med:.1f} m "
-                         f"(expected metres; pass depth_scale, e.g. 1000 for millimetres)")
+                         f"(expected metres; pass depth_scale={s:g}, which gives {raw / s:.2f} m)")
     if not np.isfinite(inten).all():
         raise ValueError(f"{where}intensity contains NaN or inf")
     if mask is not None:
@@ -111,6 +157,20 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
     return Frame(np.ascontiguousarray(inten, dtype=np.float32), np.ascontiguousarray(z), mask)
 
 
+def check_frame(frame, what: str = "frame") -> None:
+    """Raise ValueError unless ``frame`` is a Frame (anything with ``intensity`` and ``depth``),
+    naming ``what`` and, for a ``(timestamp, Frame)`` pair (what iterating a sequence yields),
+    how to pass the frames."""
+    if hasattr(frame, "intensity") and hasattr(frame, "depth"):
+        return
+    hint = ""
+    if isinstance(frame, tuple) and len(frame) == 2 and hasattr(frame[1], "intensity"):
+        hint = ("; iterating a sequence yields (timestamp, Frame) pairs: pass the frames, "
+                "e.g. (f for _, f in seq)")
+    raise ValueError(f"{what} must be a jaxvo.Frame (intensity, depth; see jaxvo.make_frame), "
+                     f"got {type(frame).__name__}{hint}")
+
+
 def validate_pair(ref: Frame, cur: Frame, camera) -> None:
     """Check two frames and a camera agree; raise ValueError naming the problem.
 
@@ -118,8 +178,7 @@ def validate_pair(ref: Frame, cur: Frame, camera) -> None:
     arrays inside a user's jit skip the value checks.
     """
     for name, f in (("reference", ref), ("current", cur)):
-        if not hasattr(f, "intensity") or not hasattr(f, "depth"):
-            raise ValueError(f"{name} frame must be a jaxvo.Frame (intensity, depth), got {type(f).__name__}")
+        check_frame(f, f"{name} frame")
         i, d = f.intensity, f.depth
         if getattr(i, "ndim", None) != 2 or getattr(d, "ndim", None) != 2:
             raise ValueError(f"{name} frame: intensity and depth must be 2-D (H, W), got shapes "

@@ -21,7 +21,8 @@ from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
-__all__ = ["Rule", "real", "integer", "choice", "positive_ints", "flag", "check_fields", "check_names"]
+__all__ = ["Rule", "real", "number", "integer", "choice", "positive_ints", "flag", "check_fields", "check_values",
+           "check_names"]
 
 Bound = Union[None, float, str]   # a number, or the name of another field of the same object
 
@@ -36,6 +37,7 @@ class Rule:
     lo, hi: bounds (None = unbounded), either numbers or the name of another field whose value
       is the bound (e.g. ``lag < max_gap``); ``lo_open`` / ``hi_open`` exclude the bound itself.
     none: None is allowed too (``none_means`` says what it means, for the message).
+    scalar: "real" only: a single number (no array: a function argument, not a swept field).
     """
     kind: str
     lo: Bound = None
@@ -45,10 +47,16 @@ class Rule:
     choices: Tuple[Any, ...] = ()
     none: bool = False
     none_means: str = ""
+    scalar: bool = False
 
 
 def real(lo: Bound = None, hi: Bound = None, lo_open: bool = False, hi_open: bool = False) -> Rule:
     return Rule("real", lo, hi, lo_open, hi_open)
+
+
+def number(lo: Bound = None, hi: Bound = None, lo_open: bool = False, none_means: str = "") -> Rule:
+    """A single number (an argument; ``real`` also takes arrays), None too when ``none_means`` says what it means."""
+    return Rule("real", lo, hi, lo_open, none=bool(none_means), none_means=none_means, scalar=True)
 
 
 def integer(lo: Bound = None, hi: Bound = None, hi_open: bool = False, none_means: str = "") -> Rule:
@@ -76,7 +84,7 @@ def _allowed(rule: Rule, lo, hi) -> str:
     if rule.kind == "choice":
         return "one of " + ", ".join(map(repr, rule.choices))
     if rule.kind == "bool":
-        return "True or False"
+        return "True or False" + (f", or None ({rule.none_means})" if rule.none else "")
     noun = {"real": "a number", "int": "an integer", "ints": "a tuple of integers"}[rule.kind]
     if rule.kind == "ints":
         noun += ", each"
@@ -157,8 +165,19 @@ def check_fields(obj, rules: Mapping[str, Rule], what: str) -> None:
     if missing:
         raise ValueError(f"{what}: field(s) {', '.join(missing)} have no validation rule "
                          f"(add them to the table next to {type(obj).__name__})")
-    values: Dict[str, Any] = {n: getattr(obj, n) for n in names}
-    for name in names:
+    _check({n: getattr(obj, n) for n in names}, rules, f"{what}.")
+
+
+def check_values(values: Mapping[str, Any], rules: Mapping[str, Rule], what: str) -> None:
+    """Check a function's arguments ``values`` ({name: value}) against ``rules`` (one each), as
+    :func:`check_fields` checks fields; messages read ``"{what}: name must be ..."``, e.g.
+    ``open_sequence: max_frames must be an integer >= 1, or None (all frames), got '10'``."""
+    _check(dict(values), rules, f"{what}: ")
+
+
+def _check(values: Dict[str, Any], rules: Mapping[str, Rule], prefix: str) -> None:
+    """Raise ValueError on the first of ``values`` that breaks its rule (``prefix`` + name in the message)."""
+    for name in values:
         rule, x = rules[name], values[name]
 
         lo, hi = _bound(rule.lo, values), _bound(rule.hi, values)
@@ -166,7 +185,7 @@ def check_fields(obj, rules: Mapping[str, Rule], what: str) -> None:
         def fail():
             refs = [f"{b} = {values[b]}" for b in (rule.lo, rule.hi) if isinstance(b, str) and values[b] is not None]
             extra = f" ({', '.join(refs)})" if refs else ""
-            raise ValueError(f"{what}.{name} must be {_allowed(rule, lo, hi)}{extra}, got {_show(x)}")
+            raise ValueError(f"{prefix}{name} must be {_allowed(rule, lo, hi)}{extra}, got {_show(x)}")
 
         if x is None:
             if not rule.none:
@@ -189,7 +208,7 @@ def check_fields(obj, rules: Mapping[str, Rule], what: str) -> None:
             if _is_tracer(x):
                 continue
             a = _numbers(x)
-            if a is None or not _in_range(a, rule, lo, hi):
+            if a is None or (rule.scalar and a.ndim != 0) or not _in_range(a, rule, lo, hi):
                 fail()
 
 

@@ -1,15 +1,21 @@
-"""Tests of jaxvo.runtime.cache: where the persistent compilation cache lives, and that a second
-`jaxvo run` process loads the compiled estimator from it instead of compiling again."""
+"""Tests of jaxvo.runtime.cache: where the persistent compilation cache lives, that a second
+`jaxvo run` or library process loads the compiled estimator from it instead of compiling again
+(also from a moved or copied folder), and that broken entries are rebuilt."""
 from __future__ import annotations
 
+import json
+import logging
 import os
+import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from jaxvo.runtime import aot
@@ -177,3 +183,140 @@ def test_cli_options_choose_the_folder(tmp_path):
     assert r.exit_code == 2 and not env_dir.exists()
     r = runner.invoke(main, ["run", str(tmp_path / "missing"), "--cache-dir", str(opt_dir)])
     assert r.exit_code == 2 and opt_dir.is_dir() and not env_dir.exists()
+
+
+# ----------------------------------------------------------------------------- the library's default
+
+_FIRST_ESTIMATE = """
+import json, sys
+import jax, numpy as np
+import jaxvo
+from jaxvo.runtime import aot
+cold = jaxvo.cache.is_cold()
+rng = np.random.default_rng(0)
+img = (rng.random((60, 80)) * 255).astype(np.float32)
+ref = jaxvo.make_frame(img, np.full((60, 80), 2.0, np.float32))
+cur = jaxvo.make_frame(np.roll(img, 1, axis=1), ref.depth)
+est = jaxvo.estimate_motion(ref, cur, jaxvo.DEFAULT.at_level(3), jaxvo.Config(method="classic"), jax.random.key(0))
+print(json.dumps({"folder": str(jaxvo.cache.folder()), "cold": cold, "aot": aot.stats(), "jax": jaxvo.cache.stats(),
+                  "T": np.asarray(est.T_cur_ref).tolist()}))
+"""
+
+
+def _first_estimate(folder: Path) -> tuple:
+    r = subprocess.run([sys.executable, "-c", _FIRST_ESTIMATE], capture_output=True, text=True, cwd=REPO,
+                       env={**os.environ, cache.ENV: str(folder)}, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.splitlines()[-1]), r.stderr
+
+
+def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_path):
+    """A program that only imports jaxvo: the first process on an empty folder compiles (and says
+    so in one note line), a second one, after the folder was moved, compiles nothing: every
+    program it needs is a hit, the estimator is not traced, and the estimate is bitwise the same."""
+    first, err = _first_estimate(tmp_path / "cache")
+    assert first["folder"] == str(tmp_path / "cache") and first["cold"] is True
+    assert first["aot"]["exported"] == 1 and first["jax"]["requests"] > first["jax"]["hits"]
+    notes = [l for l in err.splitlines() if l.startswith("note:")]
+    assert len(notes) == 1 and "compiling jaxvo's programs the first time on this machine" in notes[0]
+    assert "Traceback" not in err and "Warning" not in err
+    entries = sorted(p.name for p in (tmp_path / "cache").rglob("*") if p.is_file())
+
+    shutil.move(tmp_path / "cache", tmp_path / "moved")   # a moved (or copied) folder still hits
+    second, err = _first_estimate(tmp_path / "moved")
+    assert second["cold"] is False and not err.strip()
+    assert second["aot"] == {"loaded": 1, "exported": 0, "fallbacks": 0}
+    assert second["jax"]["requests"] == second["jax"]["hits"] > 0 and second["jax"]["repaired"] == 0
+    assert sorted(p.name for p in (tmp_path / "moved").rglob("*") if p.is_file()) == entries
+    assert second["T"] == first["T"]
+
+
+def _fresh_program(scale: float):
+    """A program compiled anew in this process (a new function: JAX's in-memory caches miss, so
+    the persistent cache is asked), returning its result for a fixed input."""
+    return np.asarray(jax.jit(lambda x: x * scale + 1.0)(jnp.arange(4.0, dtype=jnp.float32)))
+
+
+@pytest.fixture
+def own_cache(tmp_path, monkeypatch):
+    """This process's cache switched to an empty folder of the test, and back afterwards; the
+    once-per-process notes given afresh."""
+    from jaxvo.runtime import notes
+
+    before = cache.folder()
+    monkeypatch.setattr(notes, "_GIVEN", set())
+    assert cache.enable(tmp_path / "cache") == tmp_path / "cache"
+    yield tmp_path / "cache"
+    if before is None:
+        cache.disable()
+    else:
+        cache.enable(before)
+
+
+def _entries(folder: Path):
+    """The entries of :func:`_fresh_program`'s programs in ``folder``."""
+    return sorted(p for p in folder.iterdir() if p.name.startswith("jit__lambda") and p.name.endswith("-cache"))
+
+
+@pytest.mark.parametrize("damage", [lambda b: b[: len(b) // 2], lambda b: b"", lambda b: b"not a program"],
+                         ids=["truncated", "empty", "garbage"])
+def test_a_broken_entry_is_removed_and_rebuilt_with_one_note(own_cache, caplog, damage):
+    want = _fresh_program(3.0)
+    (entry,) = _entries(own_cache)
+    good = entry.read_bytes()
+    entry.write_bytes(damage(good))
+    before = cache.stats()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with caplog.at_level(logging.WARNING, logger="jaxvo"):
+            got = _fresh_program(3.0)     # the broken entry: removed, compiled, written anew
+            _fresh_program(3.0)           # the rebuilt entry: a hit
+    np.testing.assert_array_equal(got, want)
+    assert not [w for w in caught if "compilation cache" in str(w.message)]   # JAX's warning is not given
+    assert [r.getMessage() for r in caplog.records] == [
+        f"note: {own_cache}: removed a broken compilation-cache entry (truncated or empty: a full disk or a killed "
+        f"process); compiling it again"]
+    after = cache.stats()
+    assert after["repaired"] == before["repaired"] + 1 and after["hits"] == before["hits"] + 1
+    assert after["requests"] == before["requests"] + 2 and entry.stat().st_size > len(good) // 2
+    assert not [p for p in own_cache.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_copied_folder_hits_and_off_keeps_nothing(own_cache, tmp_path):
+    _fresh_program(5.0)
+    copy = tmp_path / "copy"
+    shutil.copytree(own_cache, copy)
+    assert cache.enable(copy) == copy and cache.folder() == copy
+    before = cache.stats()
+    _fresh_program(5.0)
+    after = cache.stats()
+    assert after["hits"] == before["hits"] + 1 and len(_entries(copy)) == 1
+    cache.disable()
+    assert cache.folder() is None and cache.is_cold() is True
+    _fresh_program(7.0)
+    assert len(_entries(copy)) == 1 and cache.stats()["requests"] == after["requests"] + 1
+
+
+def test_import_default_follows_the_environment(own_cache, tmp_path, monkeypatch):
+    """use_default (what importing jaxvo does): JAXVO_CACHE_DIR's folder, nothing for 'off', and a
+    program's own JAX cache folder is left alone; a decision of the process is kept."""
+    def fresh_default(env_value, jax_dir=None):
+        cache.disable()
+        jax.config.update("jax_compilation_cache_dir", jax_dir)
+        monkeypatch.setitem(cache._STATE, "decided", False)
+        monkeypatch.setenv(cache.ENV, env_value)
+        return cache.use_default()
+
+    assert fresh_default(str(tmp_path / "env")) == tmp_path / "env" == cache.folder()
+    assert cache.use_default() == tmp_path / "env"          # decided: not again
+    assert fresh_default("off") is None and cache.folder() is None
+    assert fresh_default(str(tmp_path / "env"), jax_dir=str(tmp_path / "theirs")) is None
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "theirs") and not (tmp_path / "env2").exists()
+    jax.config.update("jax_compilation_cache_dir", None)
+
+
+def test_tests_do_not_write_into_the_users_cache():
+    """conftest.py names a folder of the session before jaxvo is imported (what every subprocess inherits)."""
+    home = cache.cache_dir(environ={"HOME": str(Path.home())})
+    assert cache.ENV in os.environ and cache.cache_dir() != home
+    assert cache.folder() is None or home not in (cache.folder(), *cache.folder().parents)

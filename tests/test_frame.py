@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxvo.camera import DEFAULT
-from jaxvo.frame import Frame, luminance, make_frame, validate_pair
+from jaxvo.frame import Frame, check_frame, luminance, make_frame, suggest_depth_scale, validate_pair
 
 H, W = 60, 80
 CAM = DEFAULT.at_level(3)  # 80 x 60
@@ -20,12 +20,12 @@ def _depth_u16(h=H, w=W, value=10000):
     return np.full((h, w), value, np.uint16)
 
 
-def test_uint16_depth_is_divided_by_5000():
+def test_uint16_depth_is_divided_by_the_scale():
     d = _depth_u16()
     d[0, 0] = 0
     d[1, 1] = 5000
     d[2, 2] = 65535
-    f = make_frame(_rgb(), d)
+    f = make_frame(_rgb(), d, 5000)
     assert f.depth.dtype == np.float32 and f.intensity.dtype == np.float32
     assert f.depth.shape == (H, W) and f.intensity.shape == (H, W)
     assert f.depth[0, 0] == 0.0
@@ -56,9 +56,9 @@ def test_float_depth_is_metres_and_bad_values_become_invalid():
 
 def test_grey_and_float_images():
     g = np.full((H, W), 77, np.uint8)
-    f = make_frame(g, _depth_u16())
+    f = make_frame(g, _depth_u16(), 5000)
     assert f.intensity.dtype == np.float32 and np.all(f.intensity == 77.0)
-    f = make_frame(np.full((H, W), 123.5, np.float64), _depth_u16())
+    f = make_frame(np.full((H, W), 123.5, np.float64), _depth_u16(), 5000)
     assert np.all(f.intensity == np.float32(123.5))
     assert isinstance(f, Frame) and f.shape == (H, W)
 
@@ -110,7 +110,7 @@ def test_source_is_named_in_the_message():
 def test_non_finite_intensity_raises():
     img = np.full((H, W), 10.0)
     img[3, 3] = np.nan
-    _raises(r"intensity contains NaN", img, _depth_u16())
+    _raises(r"intensity contains NaN", img, _depth_u16(), 5000)
 
 
 def test_luminance_weights():
@@ -136,15 +136,15 @@ def test_luminance_weights():
     with pytest.raises(ValueError):
         luminance(np.zeros((3, 4, 5), np.uint8))
     # make_frame with colour uses the same weights
-    f = make_frame(np.broadcast_to(px[:, :1], (H, W, 3)).copy(), _depth_u16())
+    f = make_frame(np.broadcast_to(px[:, :1], (H, W, 3)).copy(), _depth_u16(), 5000)
     np.testing.assert_allclose(f.intensity, 0.299 * 255, rtol=1e-6)
 
 
 def test_validate_pair():
-    a = make_frame(_rgb(), _depth_u16())
-    b = make_frame(_rgb(), _depth_u16(value=7000))
+    a = make_frame(_rgb(), _depth_u16(), 5000)
+    b = make_frame(_rgb(), _depth_u16(value=7000), 5000)
     validate_pair(a, b, CAM)  # fine
-    small = make_frame(_rgb(h=30, w=40), _depth_u16(h=30, w=40))
+    small = make_frame(_rgb(h=30, w=40), _depth_u16(h=30, w=40), 5000)
     with pytest.raises(ValueError, match="differ in size"):
         validate_pair(a, small, CAM)
     with pytest.raises(ValueError, match="intrinsics"):
@@ -180,3 +180,79 @@ def test_valid_depth_check_is_the_full_test_whatever_rows_hold_the_depth():
     d[::8] = np.inf
     d[3, 2] = np.nan
     assert _has_valid_depth(d) == plain(d) is False
+
+
+@pytest.mark.parametrize("depth, scale, match", [
+    # integer depth needs its scale; the message names the one that puts the median indoors
+    (_depth_u16(value=10000), None, r"uint16 \(sensor units\) and no depth_scale was given: pass depth_scale=5000 "
+                                    r"\(value / 5000 = metres: median 2\.00 m\)"),
+    (_depth_u16(value=1500), None, r"no depth_scale was given: pass depth_scale=1000 .*median 1\.50 m"),
+    (np.full((H, W), 2500, np.int32), None, r"int32 \(sensor units\).*depth_scale=1000"),
+    # float depth is metres: millimetres as float say which scale
+    (np.full((H, W), 1500.0, np.float32), None, r"wrong scale: median 1500\.0 m .*pass depth_scale=1000, which gives 1\.50 m"),
+    # the scale itself: a positive number
+    (_depth_u16(), "5000", r"make_frame: depth_scale must be a number > 0, or None \(float depth in metres\), got '5000'"),
+    (_depth_u16(), 0, r"depth_scale must be a number > 0"),
+    (_depth_u16(), -1000.0, r"depth_scale must be a number > 0"),
+    (_depth_u16(), np.array([1000.0, 5000.0]), r"depth_scale must be a number > 0"),
+    (_depth_u16(), True, r"depth_scale must be a number"),
+], ids=["uint16-tum", "uint16-mm", "int32-mm", "float-mm", "scale-str", "scale-0", "scale-neg", "scale-array",
+        "scale-bool"])
+def test_depth_units_must_be_said(depth, scale, match):
+    with pytest.raises(ValueError, match=match):
+        make_frame(_rgb(), depth, scale)
+
+
+def test_float_metres_and_integer_depth_with_its_scale_pass():
+    assert make_frame(_rgb(), np.full((H, W), 2.0, np.float32)).depth[0, 0] == 2.0
+    for dtype in (np.uint16, np.int32, np.uint8):
+        f = make_frame(_rgb(), np.full((H, W), 200, dtype), depth_scale=100)
+        assert f.depth[0, 0] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("raw, exclude, want", [
+    (10000.0, None, 5000.0), (1500.0, None, 1000.0), (2.0, None, 1.0), (3000.0, 5000.0, 1000.0),
+    (1e9, None, 5e8),   # no common scale fits: the one that gives 2 m
+])
+def test_suggest_depth_scale(raw, exclude, want):
+    assert suggest_depth_scale(raw, exclude) == want
+
+
+def test_bgr_image_via_from_cv2_equals_the_rgb_path():
+    rgb = _rgb()
+    bgr = np.ascontiguousarray(rgb[..., ::-1])    # what cv2.imread returns for the same file
+    d = _depth_u16()
+    want = make_frame(rgb, d, 5000)
+    for got in (Frame.from_cv2(bgr, d, 5000), make_frame(bgr, d, 5000, color_order="bgr")):
+        np.testing.assert_array_equal(got.intensity, want.intensity)
+        np.testing.assert_array_equal(got.depth, want.depth)
+    # read as RGB, a BGR image has other intensities (red and blue weigh differently)
+    assert np.abs(make_frame(bgr, d, 5000).intensity - want.intensity).max() > 10
+    # from_cv2 passes the other arguments on
+    m = Frame.from_cv2(bgr, d, 5000, mask=np.ones((H, W), np.uint8)).mask
+    assert m.dtype == bool and m.all()
+    with pytest.raises(ValueError, match=r"^frame\.png: .*no valid"):
+        Frame.from_cv2(bgr, np.zeros_like(d), 5000, source="frame.png")
+
+
+@pytest.mark.parametrize("order", ["BGR", "gbr", "", None, 1])
+def test_unknown_colour_order_raises(order):
+    with pytest.raises(ValueError, match=r"color_order must be one of 'rgb', 'bgr'"):
+        make_frame(_rgb(), _depth_u16(), 5000, color_order=order)
+    with pytest.raises(ValueError, match=r"luminance: color_order must be one of"):
+        luminance(_rgb(), order)
+
+
+@pytest.mark.parametrize("value, match", [
+    ((0.0, Frame(np.zeros((2, 2), np.float32), np.ones((2, 2), np.float32))),
+     r"got tuple; iterating a sequence yields \(timestamp, Frame\) pairs: pass the frames, e\.g\. \(f for _, f in seq\)"),
+    ((np.zeros((2, 2)), np.ones((2, 2))), r"must be a jaxvo\.Frame .*got tuple$"),
+    (None, r"got NoneType$"),
+    (np.zeros((2, 2)), r"got ndarray$"),
+])
+def test_check_frame_names_what_was_passed(value, match):
+    with pytest.raises(ValueError, match=r"^frame must be a jaxvo\.Frame"):
+        check_frame(value)
+    with pytest.raises(ValueError, match=match):
+        check_frame(value)
+    check_frame(Frame(np.zeros((2, 2), np.float32), np.ones((2, 2), np.float32)))   # a Frame passes

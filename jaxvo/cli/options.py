@@ -10,7 +10,7 @@ import click
 
 from jaxvo.camera import PRESETS
 from jaxvo.pipelines.demo import parse_size
-from jaxvo.runtime import cache
+from jaxvo.runtime import cache, notes
 
 __all__ = ["CONVENTIONS", "SEED", "POSITIVE", "FORCE", "compilation_cache", "compile_note", "device", "size_option",
            "sequence_with_trajectory", "progress_cb"]
@@ -51,25 +51,30 @@ def compilation_cache(f):
     @functools.wraps(f)
     def wrapper(*args, cache_dir=None, no_cache=False, **kwargs):
         want = cache.cache_dir(cache_dir, no_cache)
-        cold = want is None or not Path(want).is_dir() or next(Path(want).iterdir(), None) is None
         if want is not None and cache.enable(want) is None:
             click.echo(f"warning: {want}: cannot create the compilation cache folder; compiling without it",
                        err=True)
             want = None
-        _COLD[:] = [(cold, want)]
+        if want is None:
+            cache.disable()   # importing jaxvo switched the default folder on
+        _RUN_CACHE[:] = [want]
         return f(*args, **kwargs)
     return wrapper
 
 
-#: (the cache was empty or is off, its folder) of the command running, until compile_note says it
-_COLD: list = []
+#: the cache folder of the command running (None: off), until compile_note looks at it
+_RUN_CACHE: list = []
 
 
 def compile_note() -> None:
     """Say once, before a progress bar that would sit at 0 %, that this run compiles: the
-    compilation cache (:func:`compilation_cache`) was empty or is off."""
-    cold, folder = _COLD.pop() if _COLD else (False, None)
-    if cold:
+    compilation cache (:func:`compilation_cache`) holds nothing for this jaxvo, jax and device
+    (:func:`jaxvo.runtime.cache.is_cold`) or is off. The library's own note of it is not given then."""
+    if not _RUN_CACHE:
+        return
+    folder = _RUN_CACHE.pop()
+    if cache.is_cold(folder):
+        notes.suppress("compiling")
         where = (f"kept in {folder} for the next runs" if folder is not None
                  else "the compilation cache is off, so every run compiles")
         click.echo(f"note: compiling the estimator for this machine first (tens of seconds; {where})", err=True)

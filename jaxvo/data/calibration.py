@@ -16,6 +16,7 @@ import numpy as np
 from jaxvo.camera import Camera, camera_for_sequence, camera_for_size
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.textfiles import _data_lines
+from jaxvo.frame import PLAUSIBLE_DEPTH, suggest_depth_scale
 
 __all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "PLAUSIBLE_DEPTH",
            "DEFAULT_SCALE_MIN_MEDIAN"]
@@ -84,8 +85,6 @@ def sequence_camera(seq_dir, image_size: Tuple[int, int], name: Optional[str] = 
     return camera_for_size(cam, w, h), f"a guess: the {cam.width}x{cam.height} preset for the folder name scaled to {w}x{h}"
 
 
-#: where a median valid depth (metres) is taken as plausible for an RGB-D camera
-PLAUSIBLE_DEPTH = (0.2, 10.0)
 #: with the layout's default depth scale, a median below this (metres) stops the run too: a
 #: recording in millimetres read as TUM's 1/5000 m puts typical indoor scenes (median 1.5-3 m:
 #: TUM fr2/desk 1.5, fr3/long_office 2.4, Bonn crowd 2.3-2.9) at 0.3-0.6 m
@@ -93,11 +92,12 @@ DEFAULT_SCALE_MIN_MEDIAN = 0.7
 
 
 def check_depth_scale(depth_m, depth_scale: float, source, explicit: bool = True) -> None:
-    """Raise DatasetError (one line naming ``source`` and the depth scale to pass) when the depth
-    scale looks wrong: the median valid depth of ``depth_m`` (metres, 0 = invalid) outside
-    :data:`PLAUSIBLE_DEPTH`, or, when ``depth_scale`` is the layout's default rather than
-    chosen (``explicit``), under :data:`DEFAULT_SCALE_MIN_MEDIAN` (millimetres read with TUM's
-    5000 come out 5x too small; passing the scale explicitly accepts such close scenes)."""
+    """Raise DatasetError (one line naming ``source`` and the depth scale to pass,
+    :func:`jaxvo.frame.suggest_depth_scale`) when the depth scale looks wrong: the median valid
+    depth of ``depth_m`` (metres, 0 = invalid) outside :data:`jaxvo.frame.PLAUSIBLE_DEPTH`, or,
+    when ``depth_scale`` is the layout's default rather than chosen (``explicit``), under
+    :data:`DEFAULT_SCALE_MIN_MEDIAN` (millimetres read with TUM's 5000 come out 5x too small;
+    passing the scale explicitly accepts such close scenes)."""
     d = np.asarray(depth_m)
     v = d[d > 0]
     if v.size == 0:
@@ -108,8 +108,7 @@ def check_depth_scale(depth_m, depth_scale: float, source, explicit: bool = True
     if not low and med <= hi:
         return
     raw = med * depth_scale
-    fits = [c for c in (1000.0, 5000.0, 10000.0, 4000.0, 100.0, 1.0) if c != depth_scale and lo <= raw / c <= hi]
-    best = min(fits, key=lambda c: abs(np.log(raw / c / 2.0))) if fits else raw / 2.0
+    best = suggest_depth_scale(raw, exclude=depth_scale)
     keep = "" if explicit or not low or med < lo else f"; if the scene really is that close pass --depth-scale {depth_scale:g}"
     raise DatasetError(f"{source}: median valid depth {med:.3g} m with depth scale {depth_scale:g} is implausible "
                        f"(expected {max(lo, DEFAULT_SCALE_MIN_MEDIAN) if low and not explicit else lo:g}-{hi:g} m); "

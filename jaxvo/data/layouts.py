@@ -9,6 +9,7 @@
 """
 from __future__ import annotations
 
+import inspect
 import os
 from pathlib import Path
 from typing import List, Optional
@@ -17,7 +18,8 @@ from jaxvo.camera import Camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.icl_nuim import IclNuimSequence
 from jaxvo.data.redwood import RedwoodSequence
-from jaxvo.data.tum import TumSequence
+from jaxvo.data.tum import TumSequence, check_reader_options
+from jaxvo.validation import check_names
 
 __all__ = ["open_sequence", "find_sequences", "find_sequence", "is_sequence_dir", "data_root"]
 
@@ -82,8 +84,15 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[f
     (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
     :class:`IclNuimSequence`; ``color/`` (or ``image/``) + ``depth/`` folders (Redwood) ->
     :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's) and ``kwargs``
-    (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else.
+    (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else,
+    and ValueError naming the option and what it may hold for an option of a wrong type or value
+    (e.g. ``max_frames="10"``).
+
+    A sequence is lazy: ``seq.frame(i)`` or ``seq[i]`` reads frame i, ``seq[a:b]`` is a sequence of
+    the frames a to b - 1, and iterating yields ``(timestamp, Frame)`` pairs (``track`` takes the
+    frames: ``(f for _, f in seq)``).
     """
+    check_reader_options(path, depth_scale=depth_scale)
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: sequence folder does not exist")
@@ -98,4 +107,6 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[f
     else:
         raise DatasetError(f"{p}: not an RGB-D sequence folder: expected rgb.txt and depth.txt (TUM, Bonn, "
                            f"ETH3D), associations.txt (ICL-NUIM), or color/ and depth/ folders (Redwood)")
+    known = {n for c in (TumSequence, cls) for n in inspect.signature(c).parameters} - {"path", "args", "kwargs"}
+    check_names(kwargs, known, "open_sequence")
     return cls(p, camera=camera, depth_scale=depth_scale, **kwargs)

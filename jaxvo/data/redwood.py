@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxvo.data.errors import DatasetError
-from jaxvo.data.tum import TumSequence
+from jaxvo.data.tum import TumSequence, check_reader_options
 
 __all__ = ["RedwoodSequence"]
 
@@ -22,6 +22,7 @@ class RedwoodSequence(TumSequence):
     COLOR_DIRS = ("color", "image")
 
     def __init__(self, path, *args, fps: float = 30.0, **kwargs):
+        check_reader_options(path, fps=fps)
         self.fps = float(fps)
         super().__init__(path, *args, **kwargs)
 

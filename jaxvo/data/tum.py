@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import copy
+import os
 from pathlib import Path
 from typing import Iterator, Optional, Tuple
 
@@ -29,8 +31,29 @@ from jaxvo.data.masks import match_masks, read_frame_mask
 from jaxvo.data.stamps import associate, interpolate_poses
 from jaxvo.data.textfiles import read_file_list
 from jaxvo.frame import Frame, make_frame
+from jaxvo.validation import Rule, check_values, integer, number
 
-__all__ = ["TumSequence"]
+__all__ = ["TumSequence", "check_reader_options"]
+
+#: what the readers' options may hold (:func:`check_reader_options`)
+READER_RULES = {
+    "max_dt": number(0, lo_open=True),
+    "depth_scale": number(0, lo_open=True, none_means="the layout's scale"),
+    "start": integer(0),
+    "max_frames": integer(1, none_means="all frames"),
+    "bonn": Rule("bool", none=True, none_means="decided from the folder name"),
+    "gt_slack": number(0),
+    "fps": number(0, lo_open=True),
+}
+
+
+def check_reader_options(path, **options) -> None:
+    """Raise ValueError (one line: ``open_sequence: <option> must be <what is allowed>, got <value>``)
+    unless ``path`` is a path (str or os.PathLike) and each of ``options`` (names of
+    :data:`READER_RULES`) has an allowed type and value; e.g. ``max_frames="10"``."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"open_sequence: path must be a folder name (str or os.PathLike), got {type(path).__name__}")
+    check_values(options, READER_RULES, "open_sequence")
 
 
 class TumSequence:
@@ -71,20 +94,17 @@ class TumSequence:
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
                  depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
                  bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None):
+        check_reader_options(path, max_dt=max_dt, depth_scale=depth_scale, start=start, max_frames=max_frames,
+                             bonn=bonn, gt_slack=gt_slack)
+        if mask_dir is not None and not isinstance(mask_dir, (str, os.PathLike)):
+            raise ValueError(f"open_sequence: mask_dir must be a folder name (str or os.PathLike) or None, "
+                             f"got {type(mask_dir).__name__}")
         self.path = Path(path)
         if not self.path.exists():
             raise DatasetError(f"{self.path}: sequence folder does not exist")
         if not self.path.is_dir():
             raise DatasetError(f"{self.path}: not a folder (expected a {self.LAYOUT} sequence folder)")
         self.name = self.path.resolve().name
-        if not (max_dt > 0):
-            raise ValueError(f"max_dt must be > 0 seconds, got {max_dt}")
-        if depth_scale is not None and not (depth_scale > 0):
-            raise ValueError(f"depth_scale must be > 0, got {depth_scale}")
-        if start < 0:
-            raise ValueError(f"start must be >= 0, got {start}")
-        if max_frames is not None and max_frames < 1:
-            raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
         if camera is not None and not isinstance(camera, Camera):
             raise ValueError(f"camera must be a jaxvo.Camera, got {camera!r}"
                              + (f" (use jaxvo.camera.PRESETS[{camera!r}])" if isinstance(camera, str) else ""))
@@ -224,8 +244,32 @@ class TumSequence:
             self._depth_checked = True
         return fr
 
-    def __getitem__(self, i: int) -> Frame:
+    def __getitem__(self, i):
+        """``seq[i]``: frame i (:meth:`frame`); ``seq[a:b]``: the frames a to b - 1 as a sequence of
+        their own (a view: nothing is read until its frames are; its ``start`` counts from the
+        folder's first frame, so ``run_sequence(seq[a:b], ...)`` records the frames it ran)."""
+        if isinstance(i, slice):
+            return self._view(i)
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+            raise ValueError(f"sequence index must be an integer or a slice a:b, got {type(i).__name__}")
         return self.frame(i)
+
+    def _view(self, s: slice) -> "TumSequence":
+        """The sequence of the frames ``s`` selects, which must be consecutive and at least one."""
+        for v in (s.start, s.stop, s.step):
+            if v is not None and (isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))):
+                raise ValueError(f"sequence slice bounds must be integers or None, got {type(v).__name__}")
+        a, b, step = s.indices(len(self))
+        if step != 1:
+            raise ValueError(f"a sequence slice takes consecutive frames (step 1), got step {step}; for every "
+                             f"k-th frame use [seq.frame(i) for i in range({a}, {b}, {step})]")
+        if b <= a:
+            raise ValueError(f"sequence slice [{s.start}:{s.stop}] holds no frame (the sequence has {len(self)})")
+        view = copy.copy(self)
+        view.start = self.start + a
+        for name in ("timestamps", "depth_timestamps", "rgb_paths", "depth_paths", "mask_paths"):
+            setattr(view, name, getattr(self, name)[a:b])
+        return view
 
     def __iter__(self) -> Iterator[Tuple[float, Frame]]:
         """Yield ``(timestamp, Frame)`` lazily, one frame decoded per step."""

@@ -59,7 +59,7 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
         images, no valid depth, or an invalid config.
     """
     args = estimate_args(ref, cur, camera, config, key, init, weights)
-    # through the program exported into the cache folder when the CLI (jaxvo.runtime.cache.enable)
-    # switched that on: a second process then skips tracing; else plain jit (the arguments as a
+    # through the program exported into the cache folder when the cache is on (jaxvo.runtime.cache,
+    # by default): a second process then skips tracing; else plain jit (the arguments as a
     # plain tuple: the pytree, and so the exported program's name, as the estimate's signature)
     return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))

@@ -21,8 +21,8 @@ class MotionEstimate(NamedTuple):
     hypotheses: (L,) int32 RANSAC hypotheses evaluated per level (index 0 = finest; 0 if not run).
     iterations: (L,) int32 LM iterations per level.
     valid: bool, a trustworthy estimate: finite, a well-conditioned information matrix,
-      inlier ratio >= min_inlier_ratio, and enough depth and photometric agreement
-      (see :class:`TrustStats`, :func:`explain_validity`).
+      inlier ratio >= min_inlier_ratio, enough depth and photometric agreement, and enough
+      pixels with depth to judge it (see :class:`TrustStats`, :func:`explain_validity`).
     information: (6, 6) J^T W J / sigma^2 at the finest level (inverse covariance of a
       left perturbation of T_cur_ref, twist order (w, v)).
     residual_rms: weighted RMS photometric residual at the finest level (0-255 units).

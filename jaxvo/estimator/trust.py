@@ -18,7 +18,14 @@ from jaxvo.estimator.result import MotionEstimate
 from jaxvo.frame import Frame, validate_pair
 
 __all__ = ["TrustStats", "explain_validity", "final_counts", "final_residuals", "pixel_counts", "trust_stats",
-           "trusted"]
+           "trusted", "MIN_VALID_PIXELS"]
+
+#: Fewest reference pixels with valid depth, at the finest level processed, that an estimate
+#: is trusted on. The other statistics are fractions of pixels, and they judge a pose to within
+#: about a pixel: on images smaller than about 64x48 a pixel spans degrees, so a pose a few
+#: degrees and centimetres off agrees with the data as well as the right one. Every level of
+#: a 640x480 or 320x240 recording down to 80x60 holds several thousand.
+MIN_VALID_PIXELS = 2000
 
 
 def final_residuals(ref_l, cur_l, cam, T, config):
@@ -46,6 +53,9 @@ class TrustStats(NamedTuple):
       luminance residual is under thresh_lum too. Where the geometry agrees the scene is
       the same surface, and at the right pose its texture lands on the same texture;
       smooth areas agree with any pose, so only textured pixels count (0 without any).
+    valid_pixels: reference pixels with valid depth (int32), the number the fractions are
+      taken over; fewer than :data:`MIN_VALID_PIXELS` (images under about 64x48) is too few
+      to tell a pose from one a pixel off.
     """
     finite: jnp.ndarray
     conditioning: jnp.ndarray
@@ -54,6 +64,7 @@ class TrustStats(NamedTuple):
     depth_agreement: jnp.ndarray
     textured: jnp.ndarray
     photometric_agreement: jnp.ndarray
+    valid_pixels: jnp.ndarray
 
 
 class _Counts(NamedTuple):
@@ -104,14 +115,15 @@ def trust_stats(c: _Counts, info, T) -> TrustStats:
     finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
     return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(c.valid_inliers, c.valid),
                       frac(c.overlap, c.valid), frac(c.depth_ok, c.overlap), frac(c.textured, c.valid),
-                      frac(c.textured_agree, c.textured_depth_ok))
+                      frac(c.textured_agree, c.textured_depth_ok), c.valid)
 
 
 def trusted(s: TrustStats, config: Config):
     """The failure flag's rule (measured as a classifier by experiments/failure_flag.py)."""
     return (s.finite & (s.conditioning > 1e-9) & (s.inlier_ratio >= config.min_inlier_ratio)
             & (s.depth_agreement >= config.min_depth_agreement)
-            & (s.photometric_agreement >= config.min_photometric_agreement))
+            & (s.photometric_agreement >= config.min_photometric_agreement)
+            & (s.valid_pixels >= MIN_VALID_PIXELS))
 
 
 @jax.jit
@@ -129,7 +141,10 @@ def _explain(ref_int, ref_depth, cur_int, cur_depth, camera, config, T, info, of
 def explain_validity(ref: Frame, cur: Frame, camera: Camera, estimate: "MotionEstimate",
                      config: Optional[Config] = None):
     """Why ``estimate`` (of ``estimate_motion(ref, cur, camera, config)``) is or is not ``valid``:
-    returns ``(TrustStats, valid)``, recomputed exactly as the estimator does at the end."""
+    returns ``(TrustStats, valid)``, recomputed exactly as the estimator does at the end. The rule
+    (:func:`trusted`): finite, conditioning > 1e-9, ``inlier_ratio``, ``depth_agreement`` and
+    ``photometric_agreement`` at least the config's ``min_*`` values, and ``valid_pixels`` at
+    least :data:`MIN_VALID_PIXELS`."""
     config = checked_config(config, camera)
     validate_pair(ref, cur, camera)
     offset = 0.0 if estimate.brightness is None else estimate.brightness

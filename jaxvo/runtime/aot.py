@@ -9,7 +9,9 @@ deserializes it and calls it without tracing; its XLA compilation is then a hit 
 cache. The first process traces once, exports, writes the file and runs the exported
 program (one trace, one XLA compilation, as without this module).
 
-A file is named by a hash of everything that determines the program: the function's name,
+A file is named ``<function>-<environment>-<program>.jaxexport``: a hash of the environment
+(:func:`environment_tag`, so that :func:`has_programs` tells whether a folder holds anything
+for this jaxvo, jax and device) and a hash of everything that determines the program: the function's name,
 the jax and jaxlib versions, the backend (platform, its version, device kind), JAX's
 configuration values (but those of logging, caches and dumps) and ``XLA_FLAGS``, the source of every module of the jaxvo package,
 and the arguments' pytree structure (which holds the static fields of ``Config`` and the
@@ -21,6 +23,9 @@ temporary name and renamed (``os.replace``), so processes sharing the folder rea
 no file or a complete one; two processes that export the same program write equivalent
 files (they differ only in the source locations kept for error messages). Deleting the folder is always safe. Loading a file runs its program, so the folder
 must be as trusted as JAX's own cache folder (the user's cache directory).
+
+Exporting a program means compiling it (seconds to a minute): the first export of a process
+gives one note line (:mod:`jaxvo.runtime.notes`) saying so.
 
 ``jax.export`` serialization needs the ``flatbuffers`` package; without it every call takes
 the jit path. Calls whose arguments are tracers (``jax.vmap`` / ``jax.jit`` of the
@@ -38,7 +43,9 @@ from typing import Callable, Dict, Optional, Tuple
 import jax
 import numpy as np
 
-__all__ = ["enable", "folder", "call", "program_key", "stats"]
+from jaxvo.runtime.notes import note_once
+
+__all__ = ["enable", "folder", "call", "program_key", "stats", "environment_tag", "has_programs"]
 
 _MAGIC = b"jaxvo-exported-1\n"
 _FOLDER: Dict[str, Optional[Path]] = {"path": None}
@@ -99,6 +106,20 @@ def _environment() -> str:
                  os.environ.get("XLA_FLAGS", ""), settings, _source_hash()))
 
 
+def environment_tag() -> str:
+    """16 hex digits naming this environment (jax, jaxlib, device, JAX settings, XLA_FLAGS,
+    jaxvo's source): part of every exported program's file name."""
+    return hashlib.sha256(_environment().encode()).hexdigest()[:16]
+
+
+def has_programs(path: os.PathLike) -> bool:
+    """Whether the folder ``path`` holds a program exported in this environment (:func:`environment_tag`)."""
+    try:
+        return any(Path(path).glob(f"*-{environment_tag()}-*.jaxexport"))
+    except OSError:
+        return False
+
+
 def _avals(leaves) -> tuple:
     return tuple(str(jax.typeof(x)) for x in leaves)
 
@@ -155,7 +176,8 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
     """The exported program of ``fn`` for these arguments (read, or traced and written), jitted."""
     from jax import export
 
-    path = _FOLDER["path"] / f"{name}-{program_key(name, jax.tree.unflatten(tree, leaves))}.jaxexport"
+    path = _FOLDER["path"] / (f"{name}-{environment_tag()}-"
+                              f"{program_key(name, jax.tree.unflatten(tree, leaves))}.jaxexport")
     exp = None
     try:
         exp = _read(path, leaves)
@@ -164,6 +186,11 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
     if exp is not None:
         _STATS["loaded"] += 1
     else:
+        first = "the first time on this machine (or with this jaxvo and jax)" if not has_programs(path.parent) \
+            else "for these images and settings"
+        note_once("compiling", f"compiling jaxvo's programs {first}: seconds to a minute; later processes load "
+                               f"them from {path.parent}")
+
         def flat(*xs):
             return tuple(jax.tree.leaves(fn(*jax.tree.unflatten(tree, xs))))
         flat.__name__ = f"{name}_exported"

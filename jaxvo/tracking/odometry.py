@@ -10,7 +10,7 @@ import numpy as np
 from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.frame import Frame
+from jaxvo.frame import Frame, check_frame
 from jaxvo.estimator import MotionEstimate, checked_config, checked_key, estimate_motion
 from jaxvo.tracking import segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
@@ -161,6 +161,7 @@ class Odometry:
         """The first half of :meth:`add`: record the frame and return the inputs of its estimate
         (None for the first frame, whose pose is set). Pass the estimate of those inputs to
         :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch)."""
+        check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
         self._frames[j] = frame
         self.static_map.add(j, frame)

@@ -467,3 +467,74 @@ def test_real_bonn_relative_motion_matches_images():
     et_nom, er_nom = err(T_ROS @ T_raw @ T_ROS)
     assert er < 0.6 and et < 0.02
     assert er < er_raw / 3 and er < er_nom / 3
+
+
+# ----------------------------------------------------------------------------- options and indexing
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"max_frames": "10"}, r"^open_sequence: max_frames must be an integer >= 1, or None \(all frames\), got '10'$"),
+    ({"max_frames": 2.0}, r"max_frames must be an integer >= 1, or None \(all frames\), got 2\.0"),
+    ({"max_frames": 0}, r"max_frames must be an integer >= 1"),
+    ({"depth_scale": "5000"}, r"^open_sequence: depth_scale must be a number > 0, or None \(the layout's scale\), got '5000'$"),
+    ({"depth_scale": -1.0}, r"depth_scale must be a number > 0"),
+    ({"start": "2"}, r"^open_sequence: start must be an integer >= 0, got '2'$"),
+    ({"start": 1.5}, r"start must be an integer >= 0, got 1\.5"),
+    ({"start": True}, r"start must be an integer >= 0, got True"),
+    ({"max_dt": "0.02"}, r"^open_sequence: max_dt must be a number > 0, got '0\.02'$"),
+    ({"max_dt": [0.01, 0.02]}, r"max_dt must be a number > 0, got \[0\.01, 0\.02\]"),
+    ({"max_dt": float("nan")}, r"max_dt must be a number > 0"),
+    ({"bonn": "yes"}, r"bonn must be True or False, or None \(decided from the folder name\), got 'yes'"),
+    ({"gt_slack": None}, r"gt_slack must be a number >= 0, got None"),
+    ({"mask_dir": 3}, r"mask_dir must be a folder name \(str or os\.PathLike\) or None, got int"),
+    ({"frames": 3}, r"unknown open_sequence field\(s\) 'frames' \(did you mean 'max_frames'\?\)"),
+], ids=lambda v: str(v) if isinstance(v, dict) else "")
+def test_wrong_option_types_name_the_option(tmp_path, kwargs, match):
+    from jaxvo.data import open_sequence
+    d = make_seq(tmp_path, n=2, gt=False)
+    with pytest.raises(ValueError, match=match) as e:
+        open_sequence(d, camera=SMALL, **kwargs)
+    assert type(e.value) is ValueError and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("path", [3, 2.5, None, ["a"]])
+def test_path_of_a_wrong_type(path):
+    from jaxvo.data import open_sequence
+    with pytest.raises(ValueError, match=r"^open_sequence: path must be a folder name \(str or os\.PathLike\), got "):
+        open_sequence(path)
+
+
+def test_redwood_fps_is_checked(tmp_path):
+    from jaxvo.data import RedwoodSequence
+    with pytest.raises(ValueError, match=r"^open_sequence: fps must be a number > 0, got '30'$"):
+        RedwoodSequence(tmp_path, fps="30")
+
+
+def test_slice_is_a_sequence_of_those_frames(tmp_path):
+    d = make_seq(tmp_path, n=6)
+    s = TumSequence(d, camera=SMALL, start=1)
+    v = s[1:4]
+    assert isinstance(v, TumSequence) and len(v) == 3 and v.start == 2 and len(s) == 5
+    assert np.array_equal(v.timestamps, s.timestamps[1:4])
+    assert [t for t, _ in v] == list(s.timestamps[1:4])
+    assert np.array_equal(v[0].depth, s[1].depth) and np.array_equal(v.frame(-1).depth, s.frame(3).depth)
+    assert v.camera == s.camera and v.groundtruth is not None
+    # as the reader opened with those options: the same frames (what run_sequence records)
+    again = TumSequence(d, camera=SMALL, start=v.start, max_frames=len(v))
+    assert np.array_equal(again.timestamps, v.timestamps) and again.rgb_paths == v.rgb_paths
+    assert len(s[-2:]) == 2 and s[-2:].start == 4 and len(s[:]) == 5 and len(s[3:100]) == 2
+    assert len(v[1:]) == 2 and v[1:].start == 3
+
+
+@pytest.mark.parametrize("index, match", [
+    (slice(0, 4, 2), r"consecutive frames \(step 1\), got step 2; for every k-th frame use "
+                     r"\[seq\.frame\(i\) for i in range\(0, 4, 2\)\]"),
+    (slice(3, 3), r"sequence slice \[3:3\] holds no frame \(the sequence has 5\)"),
+    (slice(9, None), r"holds no frame"),
+    (slice(0.5, 2), r"slice bounds must be integers or None, got float"),
+    (1.0, r"sequence index must be an integer or a slice a:b, got float"),
+    ("0", r"got str"),
+])
+def test_bad_index_says_how(tmp_path, index, match):
+    s = TumSequence(make_seq(tmp_path, n=5), camera=SMALL)
+    with pytest.raises(ValueError, match=match):
+        s[index]

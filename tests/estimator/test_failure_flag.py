@@ -68,3 +68,31 @@ def test_textureless_pair_is_invalid(renders):
     est = estimate_motion(ref, cur, CAM, CFG, jax.random.key(0))
     stats, _ = explain_validity(ref, cur, CAM, est, CFG)
     assert not bool(est.valid) and float(stats.textured) == 0.0
+
+
+
+@pytest.mark.parametrize("size, method, sensor", [((16, 12), "huber", False), ((40, 30), "classic", True)],
+                         ids=["16x12", "40x30"])
+def test_tiny_images_are_too_few_pixels_to_trust(size, method, sensor):
+    """The NEAR step rendered small: the estimate is 1 cm / 1 deg (16x12) or 2 cm (40x30) off a
+    1 cm / 1 deg motion, and every fraction the flag tests agrees with it, since a pixel spans
+    degrees; too few pixels is the reason it is not valid, as explain_validity says."""
+    from jaxvo.camera import camera_for_size
+    from jaxvo.estimator.trust import MIN_VALID_PIXELS
+    from jaxvo.synthetic import SensorModel, make_room, render
+
+    cam = camera_for_size(DEFAULT, *size)
+    scene, kw = make_room(0), ({"sensor": SensorModel()} if sensor else {})
+    ref, cur = (render(scene, cam, T, rng=k, **kw).frame() for k, T in enumerate((np.eye(4), NEAR)))
+    cfg = Config(method=method)
+    est = estimate_motion(ref, cur, cam, cfg, jax.random.key(0))
+    err = NEAR @ np.asarray(est.T_cur_ref, np.float64)
+    assert np.linalg.norm(err[:3, 3]) > 0.008          # wrong by about the motion itself
+    stats, again = explain_validity(ref, cur, cam, est, cfg)
+    assert not bool(est.valid) and not bool(again)
+    assert int(stats.valid_pixels) == int(np.sum(ref.depth > 0)) < MIN_VALID_PIXELS
+    # the rule without the pixel count would trust it
+    assert bool(stats.finite) and float(stats.conditioning) > 1e-9
+    assert float(stats.inlier_ratio) >= cfg.min_inlier_ratio and float(stats.depth_agreement) >= cfg.min_depth_agreement
+    assert float(stats.photometric_agreement) >= cfg.min_photometric_agreement
+
