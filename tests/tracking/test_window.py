@@ -14,6 +14,7 @@ import scipy.linalg
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.config import TrackConfig
+from jaxvo.evaluation import metrics
 from jaxvo.frame import make_frame
 from jaxvo.synthetic import SensorModel, make_sequence
 from jaxvo.tracking import window
@@ -152,9 +153,12 @@ def test_window_is_deterministic_and_compiles_once(crowd):
 
 def test_window_drifts_less_than_the_single_reference(crowd):
     seq, frames = crowd
-    err = {w: np.mean([_final_error(seq, _run(frames, TrackConfig(window=w), seed=s)) for s in (0, 1)])
-           for w in (1, 3)}
-    assert err[3] < 0.8 * err[1], err
+
+    def ate(odo):
+        return metrics.ate(seq.timestamps, seq.poses, seq.timestamps, np.stack(odo.poses)).stats.rmse
+
+    err = {w: np.mean([ate(_run(frames, TrackConfig(window=w), seed=s)) for s in (0, 1)]) for w in (1, 3)}
+    assert err[3] < 0.7 * err[1], err
 
 
 def test_a_covered_stretch_recovers_against_older_keyframes():
