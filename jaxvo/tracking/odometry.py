@@ -493,9 +493,9 @@ def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = No
     """Run the odometry along a sequence: a loop of :meth:`Odometry.add` over ``frames``.
 
     Frames may be any iterable (e.g. a lazy sequence); only the frames that may still serve
-    as reference are kept. ``policy`` (default :class:`TrackConfig`: keyframes with the
-    persistent static/dynamic segmentation; ``TrackConfig.frame_to_frame()`` is the paper's
-    chaining) chooses the references. Frame j is estimated with key
+    as reference are kept. ``policy`` (default :class:`TrackConfig`: a window of keyframes refined
+    together, with the persistent static/dynamic segmentation; ``TrackConfig(window=1)`` the single
+    reference; ``TrackConfig.frame_to_frame()`` the paper's chaining) chooses the references. Frame j is estimated with key
     ``jax.random.fold_in(key, j - 1)``. Poses accumulate on the host in float64:
     ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
     ``callback(step)`` is called with a :class:`TrackStep` after each frame j >= 1 (e.g. to
