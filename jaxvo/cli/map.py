@@ -73,10 +73,10 @@ def map_cmd(sequence_dir, traj, out_ply, every, voxel, method, max_frames, max_d
         said = (labels or "none") if labels != "estimate" else f"{method} outliers"
         click.echo(f"jaxvo map: {seq.name}, {len(seq)} frames ({held} held poses of {traj} left out), every {every}, "
                    f"labels {said}, {seq.camera!r}", err=True)
+        if labels in ("estimate", "hindsight"):   # the inputs passed their checks: now it compiles
+            compile_note()
         if not no_progress:
             pbar.append(progress_bar(total=0, unit="frame", desc="map"))
-    if labels in ("estimate", "hindsight"):
-        compile_note()
     ctrl_c = CtrlC()
 
     def progress(done, total):

@@ -75,9 +75,9 @@ def masks_cmd(sequence_dir, traj, out_dir, offsets, ratio, region_ratio, depth_s
         click.echo(f"jaxvo masks: {seq.name}, {posed} of {len(seq)} frames with a pose ({held} held poses of "
                    f"{traj} left out), offsets "
                    f"{','.join(str(o) for o in offset_list)}, {seq.camera!r}", err=True)
+        compile_note()          # the inputs passed their checks: now it compiles
         if not no_progress:
             pbar.append(progress_bar(total=posed, unit="frame", desc="masks"))
-    compile_note()
     ctrl_c = CtrlC()
 
     def on_mask(i):
