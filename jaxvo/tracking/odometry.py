@@ -206,7 +206,6 @@ class Odometry:
         self.references.append(used)
         if valid:
             self._chained.clear()
-        if valid:
             self._rel[j] = T
             self._info[j] = est.information
         static_mask = self.static_map.static_mask(weights if used == ref else self._key_trust[used][0],
