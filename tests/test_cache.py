@@ -199,7 +199,7 @@ ref = jaxvo.make_frame(img, np.full((60, 80), 2.0, np.float32))
 cur = jaxvo.make_frame(np.roll(img, 1, axis=1), ref.depth)
 est = jaxvo.estimate_motion(ref, cur, jaxvo.DEFAULT.at_level(3), jaxvo.Config(method="classic"), jax.random.key(0))
 print(json.dumps({"folder": str(jaxvo.cache.folder()), "cold": cold, "aot": aot.stats(), "jax": jaxvo.cache.stats(),
-                  "T": np.asarray(est.T_cur_ref).tolist()}))
+                  "T": np.asarray(est.T_cur_ref).tolist(), "jaxopt": "jaxopt" in sys.modules}))
 """
 
 
@@ -213,10 +213,12 @@ def _first_estimate(folder: Path) -> tuple:
 def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_path):
     """A program that only imports jaxvo: the first process on an empty folder compiles (and says
     so in one note line), a second one, after the folder was moved, compiles nothing: every
-    program it needs is a hit, the estimator is not traced, and the estimate is bitwise the same."""
+    program it needs is a hit, the estimator is not traced (so jaxopt, and the scipy it imports, are
+    never imported), and the estimate is bitwise the same."""
     first, err = _first_estimate(tmp_path / "cache")
     assert first["folder"] == str(tmp_path / "cache") and first["cold"] is True
     assert first["aot"]["exported"] == 1 and first["jax"]["requests"] > first["jax"]["hits"]
+    assert first["jaxopt"] is True   # the trace needs it
     notes = [l for l in err.splitlines() if l.startswith("note:")]
     assert len(notes) == 1 and "compiling jaxvo's programs the first time on this machine" in notes[0]
     assert "Traceback" not in err and "Warning" not in err
@@ -226,6 +228,7 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     second, err = _first_estimate(tmp_path / "moved")
     assert second["cold"] is False and not err.strip()
     assert second["aot"] == {"loaded": 1, "exported": 0, "fallbacks": 0}
+    assert second["jaxopt"] is False
     assert second["jax"]["requests"] == second["jax"]["hits"] > 0 and second["jax"]["repaired"] == 0
     assert sorted(p.name for p in (tmp_path / "moved").rglob("*") if p.is_file()) == entries
     assert second["T"] == first["T"]

@@ -26,7 +26,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxopt
 
 from jaxvo import geometry
 from jaxvo.camera import Camera
@@ -192,6 +191,8 @@ def solve_pose(T0, ref: RefPoints, cur: Level, camera: Camera, weights, maxiter:
       xtol: stop once an LM step is shorter than this (twist norm: radians and metres mixed;
         1e-5 is 0.01 mm / 0.0006 deg).
     """
+    import jaxopt   # at trace time only: a program loaded from the cache needs neither jaxopt nor scipy
+
     w, total = _normalised_weights(weights, depth_weight)
     solver = jaxopt.LevenbergMarquardt(
         residual_fun=_square_root_fun(T0, ref, cur, camera, w, depth_weight), materialize_jac=True,
@@ -211,6 +212,8 @@ def least_squares(residual_fun, params, maxiter: int, xtol: float = 1e-6, dampin
     :func:`solve_pose` (:func:`_run_lm`). For small problems on the host's side of tracking, e.g.
     the keyframe window's pose graph (:mod:`jaxvo.tracking.window`). Traceable (call it inside
     ``jax.jit``). Returns (params, iterations)."""
+    import jaxopt
+
     solver = jaxopt.LevenbergMarquardt(residual_fun=residual_fun, materialize_jac=True, solver="cholesky",
                                        maxiter=maxiter, damping_parameter=damping, implicit_diff=False,
                                        jit=True)
