@@ -1,23 +1,24 @@
-"""Start-up cost of ``jaxvo run``: the first pair in a fresh process, with and without the caches.
+"""Start-up cost: the first poses of a new process, ``jaxvo run`` and a library script, with and without the caches.
 
-For each method, in a fresh (temporary) cache folder: ``jaxvo run SEQ --max-frames 2`` in a new
-process three times:
+Each entry point runs in its own new process, whole (interpreter start, imports, reading,
+loading or compiling the programs, the poses, writing and exit), on the first frames of a
+sequence, in a fresh (temporary) cache folder (``JAXVO_CACHE_DIR``):
 
-1. ``first``: empty cache folder: trace, export, XLA compilation, one pair;
-2. ``second``: the same folder: the exported program and JAX's compiled executable are loaded
-   (no tracing, no compilation);
-3. ``no export``: the same folder with the exported programs deleted: JAX's compilation cache
-   alone (the estimator is traced and lowered, then its executable loaded), as before
-   ``jaxvo.runtime.aot``.
+* ``cli``: ``jaxvo run SEQ --max-frames 3`` (the default tracking, trajectory written and
+  evaluated as a user's run);
+* ``estimate_motion``: ``python -c`` importing jaxvo, reading two frames and calling
+  ``jaxvo.estimate_motion`` once;
+* ``track``: ``python -c`` importing jaxvo and running ``jaxvo.track`` (``Odometry``) on 3 frames.
 
-Reported per run: ``first pair s`` (jaxvo's summary line ``compile``: from the start of tracking
-to the first pair's pose, reading, tracing, compiling and running it) and ``process s`` (the
-wall time of the whole process, interpreter start and imports included, for one pair).
-``default`` is ``jaxvo run`` without options (ransac and the keyframe/segmentation policy), ``paper``
-``jaxvo run --paper`` (the published algorithm, ``Config.paper()``: RANSAC on every level). The
-three runs are repeated ``--repeats`` times (default 3; a fresh folder each time, the methods
-alternating) and the table gives each one's median and range: on a small shared machine one
-fresh-process run varies by a second or more.
+Per pass and entry point: ``cold`` (an empty folder: a new machine; everything traced and
+compiled), then ``--warm-runs`` processes on the folder it filled (``warm``: a machine that ran
+it once). Reported per run: the wall time of the whole process, its CPU time (user + sys of the
+child, less sensitive to other processes on a shared machine than the wall time), and the time
+from the process's start to its first pose (the library scripts report it themselves; for
+``cli``: jaxvo's summary line ``compile``, from the start of tracking to the first pose). The
+passes (``--repeats``, each in a fresh folder, the entry points alternating) give the median
+and, in brackets, the range. ``--methods`` picks the estimator (``default``: no options;
+``paper``: ``Config.paper()`` / ``--paper``).
 
 Then, unless ``--no-stages``, where the first compilation goes: the estimator alone
 (``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
@@ -35,8 +36,10 @@ XLA's own timing log (``TF_CPP_VMODULE``) in a child process.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -52,60 +55,107 @@ import common
 from jaxvo.runtime import cache  # noqa: E402
 
 SCRIPT = Path(__file__)
-RUNS = ("first", "second", "no export")
+ENTRIES = ("cli", "estimate_motion", "track")
 METHOD_ARGS = {"default": [], "classic": ["--method", "classic"], "huber": ["--method", "huber"],
                "ransac": ["--method", "ransac"], "paper": ["--paper"]}
+FRAMES = 3
+# the process's start as the parent saw it (time.time()), for a library script's own first-pose time
+_T0_ENV = "JAXVO_STARTUP_T0"
+# a library script: argv = sequence, method, entry; prints one JSON line of its own times (seconds
+# since the process started)
+_LIBRARY = """
+import json, os, sys, time
+t0 = float(os.environ["%s"])
+import jax
+import jaxvo
+t_import = time.time()
+seq_dir, method, entry = sys.argv[1:4]
+config = jaxvo.Config.paper() if method == "paper" else jaxvo.Config() if method == "default" else jaxvo.Config(method=method)
+seq = jaxvo.open_sequence(seq_dir)
+first = []
+if entry == "estimate_motion":
+    est = jaxvo.estimate_motion(seq.frame(0), seq.frame(1), seq.camera, config, jax.random.key(0))
+    est.T_cur_ref.block_until_ready()
+    first.append(time.time())
+    T = est.T_cur_ref
+else:
+    T = jaxvo.track((seq.frame(i) for i in range(%d)), seq.camera, config, jax.random.key(0),
+                    callback=lambda step: first.append(time.time())).poses[-1]
+print(json.dumps({"import_s": t_import - t0, "first_pose_s": first[0] - t0, "T": jax.device_get(T).tolist()}))
+""" % (_T0_ENV, FRAMES)
 
 
 def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sequence", default=None, help="sequence folder (default: the bundled fr2/desk excerpt)")
-    ap.add_argument("--methods", default="default,classic,huber,paper",
+    ap.add_argument("--methods", default="default",
                     help=f"comma list of {', '.join(METHOD_ARGS)} (default: %(default)s)")
-    ap.add_argument("--repeats", type=int, default=3,
-                    help="passes of the fresh-process runs; the table gives their median and range (default: %(default)s)")
+    ap.add_argument("--entries", default=",".join(ENTRIES), help="comma list of %(default)s (default: all)")
+    ap.add_argument("--repeats", type=int, default=2,
+                    help="passes, each in a fresh cache folder; the table gives their median and range (default: %(default)s)")
+    ap.add_argument("--warm-runs", type=int, default=3, help="warm processes per pass (default: %(default)s)")
     ap.add_argument("--no-stages", action="store_true", help="skip the trace / lower / compile breakdown")
-    ap.add_argument("--quick", action="store_true", help="a 160x120 synthetic sequence, classic only (smoke test)")
+    ap.add_argument("--quick", action="store_true",
+                    help="a 160x120 synthetic sequence, classic only, one pass with one warm run (smoke test)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "startup" / "startup.md", help="markdown output")
     ap.add_argument("--codegen-child", nargs=2, metavar=("SEQ", "HLO_OUT"), help=argparse.SUPPRESS)
     return ap.parse_args(argv)
 
 
-def run_once(seq: Path, method: str, folder: Path, out: Path) -> dict:
-    """One ``jaxvo run`` process for one pair; its first-pair time and process wall time."""
-    cmd = [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--max-frames", "2",
-           "--no-progress", "--force"] + METHOD_ARGS[method]
-    env = {**os.environ, cache.ENV: str(folder)}
-    t = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=common._REPO)
-    wall = time.perf_counter() - t
+def _command(entry: str, seq: Path, method: str, out: Path) -> List[str]:
+    if entry == "cli":
+        return [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--max-frames", str(FRAMES),
+                "--no-progress", "--force"] + METHOD_ARGS[method]
+    return [sys.executable, "-c", _LIBRARY, str(seq), method, entry]
+
+
+def run_once(entry: str, seq: Path, method: str, folder: Path) -> dict:
+    """One new process of ``entry``: its wall time, CPU time (user + sys) and first-pose time (s)."""
+    cmd = _command(entry, seq, method, folder / "traj.txt")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.time()
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=common._REPO,
+                       env={**os.environ, cache.ENV: str(folder), _T0_ENV: repr(t)})
+    wall = time.time() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if r.returncode != 0:
-        raise SystemExit(f"error: {' '.join(cmd)} failed (exit status {r.returncode}):\n{r.stderr[-2000:]}")
-    m = re.search(r"^compile\s+([0-9.]+) s", r.stdout + r.stderr, re.M)
-    return {"first_pair_s": float(m.group(1)) if m else float("nan"), "process_s": wall}
+        raise SystemExit(f"error: {' '.join(cmd[:3])} ... failed (exit status {r.returncode}):\n{r.stderr[-2000:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if entry == "cli":
+        m = re.search(r"^compile\s+([0-9.]+) s", r.stdout + r.stderr, re.M)
+        first = float(m.group(1)) if m else float("nan")
+    else:
+        first = json.loads(r.stdout.splitlines()[-1])["first_pose_s"]
+    return {"process_s": wall, "cpu_s": cpu, "first_pose_s": first}
 
 
-def startup_rows(seq: Path, methods: List[str], repeats: int = 1) -> List[dict]:
-    """Per method and run: the median first-pair and process times of ``repeats`` passes (each in
-    its own fresh cache folder, the methods alternating) and their ranges."""
+KEYS = ("first_pose_s", "process_s", "cpu_s")
+
+
+def startup_rows(seq: Path, methods: List[str], entries: List[str], repeats: int = 1, warm_runs: int = 3) -> List[dict]:
+    """Per method, entry point and run (cold, warm): the median and range over the passes (each in
+    its own fresh cache folder, the entry points alternating) of the first-pose, process and CPU
+    times; a pass's warm time is the median of its ``warm_runs`` processes."""
     times: dict = {}
     for rep in range(repeats):
         for method in methods:
-            folder = Path(tempfile.mkdtemp(prefix="jaxvo-startup-"))
-            try:
-                for run in RUNS:
-                    if run == "no export":
-                        shutil.rmtree(folder / "exported", ignore_errors=True)
-                    r = run_once(seq, method, folder, folder / "traj.txt")
-                    times.setdefault((method, run), []).append(r)
-                    print(f"{method:8s} {run:10s} pass {rep + 1}: first pair {r['first_pair_s']:6.1f} s  "
-                          f"process {r['process_s']:6.1f} s", flush=True)
-            finally:
-                shutil.rmtree(folder, ignore_errors=True)
+            for entry in entries:
+                folder = Path(tempfile.mkdtemp(prefix="jaxvo-startup-"))
+                try:
+                    runs = [("cold", run_once(entry, seq, method, folder))]
+                    warm = [run_once(entry, seq, method, folder) for _ in range(warm_runs)]
+                    runs.append(("warm", {k: float(np.median([w[k] for w in warm])) for k in KEYS}))
+                finally:
+                    shutil.rmtree(folder, ignore_errors=True)
+                for run, r in runs:
+                    times.setdefault((method, entry, run), []).append(r)
+                    print(f"{method:8s} {entry:15s} {run:5s} pass {rep + 1}: first pose {r['first_pose_s']:5.1f} s  "
+                          f"process {r['process_s']:5.1f} s  cpu {r['cpu_s']:5.1f} s  (load {os.getloadavg()[0]:.1f})",
+                          flush=True)
     rows = []
-    for (method, run), rs in times.items():
-        row = {"method": method, "run": run}
-        for k in ("first_pair_s", "process_s"):
+    for (method, entry, run), rs in times.items():
+        row = {"method": method, "entry": entry, "run": run}
+        for k in KEYS:
             v = [r[k] for r in rs]
             row.update({k: float(np.median(v)), k + "_min": min(v), k + "_max": max(v)})
         rows.append(row)
@@ -320,10 +370,14 @@ def main(argv: Optional[List[str]] = None) -> None:
         codegen_child(Path(args.codegen_child[0]), Path(args.codegen_child[1]))
         return
     t_start = time.perf_counter()
+    load = os.getloadavg()[0]
     tmp = None
+    entries = [e.strip() for e in args.entries.split(",") if e.strip()]
+    if [e for e in entries if e not in ENTRIES]:
+        raise SystemExit(f"error: --entries: choose from {', '.join(ENTRIES)}")
     if args.quick:
         tmp = Path(tempfile.mkdtemp(prefix="jaxvo-startup-seq-"))
-        seq = common.synthetic_sequence(tmp / "seq", 3)
+        seq = common.synthetic_sequence(tmp / "seq", FRAMES)
         methods = ["classic"]
     else:
         seq = Path(args.sequence) if args.sequence else common.find_named("rgbd_dataset_freiburg2_desk")
@@ -334,13 +388,15 @@ def main(argv: Optional[List[str]] = None) -> None:
         if bad:
             raise SystemExit(f"error: --methods: unknown {', '.join(bad)} (choose from {', '.join(METHOD_ARGS)})")
     try:
-        rows = startup_rows(seq, methods, 1 if args.quick else max(1, args.repeats))
+        rows = startup_rows(seq, methods, entries, 1 if args.quick else max(1, args.repeats),
+                            1 if args.quick else max(1, args.warm_runs))
+        load_after = os.getloadavg()[0]
         stages = [] if args.no_stages else stage_rows(seq, methods) + ([] if args.quick else part_rows(seq))
         codegen = None if args.no_stages or args.quick else codegen_rows(seq)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    write(args, argv, seq, rows, stages, codegen, time.perf_counter() - t_start)
+    write(args, argv, seq, rows, stages, codegen, time.perf_counter() - t_start, (load, load_after))
 
 
 def _spread(row: dict, key: str) -> str:
@@ -349,22 +405,25 @@ def _spread(row: dict, key: str) -> str:
     return f"{row[key]:.1f}" + (f" [{lo:.1f}-{hi:.1f}]" if hi > lo else "")
 
 
-def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: Optional[dict], total_s: float) -> None:
-    lines = common.provenance_md("Start-up: the first pair of `jaxvo run` in a new process", str(SCRIPT), argv)
-    lines += [f"Sequence: `{seq.name}`, `jaxvo run SEQ --max-frames 2` (one pair) per process, each method in "
-              "its own fresh cache folder (`JAXVO_CACHE_DIR`). `first`: empty folder; `second`: the folder the "
-              "first run filled (exported program + JAX's compiled executables); `no export`: the same folder "
-              "without `exported/`, i.e. JAX's persistent compilation cache alone (tracing and lowering "
-              "still happen). `first pair s`: jaxvo's summary line `compile` (from the start of tracking to "
-              "the first pair's pose); `process s`: the whole process, interpreter start and imports included. "
-              "`default`: `jaxvo run` without options (ransac with the keyframe/segmentation policy); `paper`: "
-              "`jaxvo run --paper` (`Config.paper()`: the published algorithm, RANSAC on every level). "
-              "Each run repeated in `--repeats` passes (each in a fresh folder, the methods alternating): the "
-              "median, and in brackets the range, of the passes. Other processes may share this machine: "
-              "compare rows of one run.", "",
-              "| method | run | first pair s | process s |", "| --- | --- | --- | --- |"]
-    lines += [f"| {r['method']} | {r['run']} | {_spread(r, 'first_pair_s')} | {_spread(r, 'process_s')} |"
-              for r in rows]
+def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: Optional[dict], total_s: float,
+          loads=(float("nan"), float("nan"))) -> None:
+    lines = common.provenance_md("Start-up: the first poses of a new process", str(SCRIPT), argv)
+    lines += [f"Sequence: `{seq.name}`, its first {FRAMES} frames. Each entry point in its own new process, "
+              "whole (interpreter start, imports, reading, the programs loaded or compiled, the poses, writing "
+              "and exit), in a fresh cache folder (`JAXVO_CACHE_DIR`) per pass: `cli`: `jaxvo run SEQ "
+              f"--max-frames {FRAMES}` (the default tracking; trajectory written and evaluated); `estimate_motion`: "
+              "`python -c` importing jaxvo and calling `jaxvo.estimate_motion` once on frames 0 and 1; `track`: "
+              f"`python -c` running `jaxvo.track` (`Odometry`) on {FRAMES} frames. `cold`: an empty folder (a new "
+              f"machine); `warm`: the folder the cold run filled (the median of {args.warm_runs if not args.quick else 1} "
+              "processes per pass). `first pose s`: from the process's start to its first pose (`cli`: jaxvo's "
+              "summary line `compile`, from the start of tracking); `process s`: the whole process's wall time; "
+              "`cpu s`: its user + sys time (less sensitive to other processes than the wall time). Passes: "
+              f"{1 if args.quick else args.repeats}, each in a fresh folder: the median, and in brackets the range. "
+              f"Load average (1 min) at the start of the runs {loads[0]:.2f}, at their end {loads[1]:.2f}: other "
+              "processes share this machine, so compare rows of one run, CPU times first.", "",
+              "| method | entry | run | first pose s | process s | cpu s |", "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {r['method']} | {r['entry']} | {r['run']} | {_spread(r, 'first_pose_s')} | "
+              f"{_spread(r, 'process_s')} | {_spread(r, 'cpu_s')} |" for r in rows]
     if stages:
         lines += ["", "## Where the first compilation goes", "",
                   "The estimator alone (`jaxvo.estimator.estimate_arrays_jit`) at the sequence's image size, in one "
