@@ -24,8 +24,10 @@ Then, unless ``--no-stages``, where the first compilation goes: the estimator al
 (``estimate_motion``'s jitted function on the sequence's image size) traced, lowered and
 XLA-compiled in this process with no cache, each stage timed, and the size of the lowered
 program (lines of StableHLO text) and of the compiled one (fusions: the kernels XLA generates code
-for); the same program compiled with XLA's legacy CPU fusion emitters, and both programs' time per
-pair (the trade between compile time and run time that XLA's option offers); and the default
+for); the same program compiled with other XLA options (legacy CPU fusion emitters, LLVM's lower
+optimisation levels, LLVM's expensive passes off), each one's CPU time to load its executable back,
+time per pair and largest pose difference from the default's (the trade between compile time and
+run time, and whether it keeps the estimates bitwise); and the default
 estimator's parts (prior fit, RANSAC hypotheses and scoring, refinement) at the finest and the
 coarsest level, each compiled alone. Last, where XLA's compilation of the default estimator
 spends its time (``codegen_rows``): its phases (HLO optimisation passes, then code generation:
@@ -162,9 +164,28 @@ def startup_rows(seq: Path, methods: List[str], entries: List[str], repeats: int
     return rows
 
 
-# XLA's CPU code generators: the fusion emitters (XLA's default) and, for comparison, the
-# legacy ones (``xla_cpu_use_fusion_emitters`` off), which compile each fusion faster
-EMITTERS = (("", {}), (", legacy fusion emitters", {"xla_cpu_use_fusion_emitters": False}))
+# XLA options that trade compile time against run time, each compiled from the same lowered
+# program: XLA's defaults; its legacy CPU fusion emitters (``xla_cpu_use_fusion_emitters`` off),
+# which compile each fusion faster; LLVM's optimisation level 1 and 0 (default 2); LLVM's expensive
+# passes off. Only a variant whose poses equal the default's (max dT 0) could replace it
+EMITTERS = (("", {}), (", legacy fusion emitters", {"xla_cpu_use_fusion_emitters": False}),
+            (", LLVM -O1", {"xla_backend_optimization_level": 1}),
+            (", LLVM -O0", {"xla_backend_optimization_level": 0}),
+            (", LLVM expensive passes off", {"xla_llvm_disable_expensive_passes": True}))
+
+
+def load_cpu_s(compiled) -> float:
+    """CPU seconds to load ``compiled``'s executable back from its serialization (what a process
+    with a warm cache pays for it, besides reading the file)."""
+    from jax._src import xla_bridge
+    from jax._src.compiler import get_compile_options
+
+    backend = xla_bridge.get_backend()
+    blob = backend.serialize_executable(compiled.runtime_executable())
+    devices = xla_bridge.xla_client.DeviceList(tuple(backend.devices()[:1]))
+    c = time.process_time()
+    backend.deserialize_executable(blob, devices, get_compile_options(num_replicas=1, num_partitions=1))
+    return time.process_time() - c
 
 
 def _config(method: str):
@@ -178,8 +199,9 @@ def _config(method: str):
 
 def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) -> List[dict]:
     """Trace / lower / XLA compile of the estimator alone, no cache (this process compiled nothing yet),
-    with XLA's fusion emitters and with its legacy ones, and each compiled program's median time
-    per pair on the sequence's first ``pairs`` consecutive pairs (``repeats`` passes, alternating)."""
+    with each of :data:`EMITTERS`' XLA options, the CPU time to load each executable back, each
+    compiled program's median time per pair on the sequence's first ``pairs`` consecutive pairs
+    (``repeats`` passes, alternating) and the largest difference of its poses from the first's."""
     import jax
     import numpy as np
 
@@ -207,7 +229,8 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
             programs.append(compiled)
             fusions = common.kernel_count(compiled)
             rows.append({"method": method, "part": "whole estimator" + label, "trace_s": t1 - t0, "lower_s": t2 - t1,
-                         "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines, "fusions": fusions})
+                         "compile_s": t4 - t3, "compile_cpu_s": c4 - c3, "lines": lines, "fusions": fusions,
+                         "load_cpu_s": load_cpu_s(compiled)})
             print(f"{method:8s} {'whole estimator' + label}: trace {t1 - t0:.2f} s  lower {t2 - t1:.2f} s  "
                   f"XLA compile {t4 - t3:.2f} s (cpu {c4 - c3:.2f} s)  {lines} lines, {fusions} fusions", flush=True)
         inputs = [estimate_args(a, b, s.camera, config, jax.random.key(k), None, None)
@@ -215,9 +238,10 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
         for row, ms in zip(rows[-len(programs):], common.median_ms_per_call(programs, inputs, repeats)):
             row["pair_ms"] = ms
         poses = [[np.asarray(prog(*a)[0]) for a in inputs] for prog in programs]
-        rows[-1]["max_dT"] = max(float(np.abs(x - y).max()) for x, y in zip(*poses))
+        for row, p in zip(rows[-len(programs) + 1:], poses[1:]):
+            row["max_dT"] = max(float(np.abs(x - y).max()) for x, y in zip(poses[0], p))
         print(f"{method:8s} ms per pair: " + ", ".join(f"{r['part']} {r['pair_ms']:.1f}" for r in rows[-len(programs):])
-              + f"; max |T difference| {rows[-1]['max_dT']:.1e}", flush=True)
+              + "; max |T difference| " + ", ".join(f"{r['max_dT']:.1e}" for r in rows[-len(programs) + 1:]), flush=True)
     return rows
 
 
@@ -432,20 +456,25 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
                   "sensitive to other processes than the wall time); lines: the lowered StableHLO text. The "
                   "parts: pieces of the default estimator at one pyramid level, each compiled alone with that "
                   "level's pyramid and reference points (the estimator compiles each of them once per level). "
-                  "fusions: the kernels of the compiled program (XLA generates code for each); `legacy fusion "
-                  "emitters`: the same lowered program compiled with XLA's option `xla_cpu_use_fusion_emitters` "
-                  "off; ms / pair: the compiled program's median time per pair on the sequence's first "
-                  "consecutive pairs, the two programs alternating (same process); max dT: the largest "
-                  "difference of their poses.",
-                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | lines | fusions | "
-                  "ms / pair | max dT |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "fusions: the kernels of the compiled program (XLA generates code for each); the variants: the "
+                  "same lowered program compiled with XLA's legacy fusion emitters "
+                  "(`xla_cpu_use_fusion_emitters` off), LLVM's optimisation level 1 or 0 "
+                  "(`xla_backend_optimization_level`, default 2), or LLVM's expensive passes off "
+                  "(`xla_llvm_disable_expensive_passes`); load cpu s: CPU seconds to load the executable back "
+                  "from its serialization (what a warm process pays for it); ms / pair: the compiled program's "
+                  "median time per pair on the sequence's first consecutive pairs, the programs alternating (same "
+                  "process); max dT: the largest difference of a variant's poses from the default's (0: bitwise "
+                  "equal).",
+                  "", "| method | part | trace s | lower s | XLA compile s | XLA compile cpu s | load cpu s | lines | "
+                  "fusions | ms / pair | max dT |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for r in stages:
             trace = "n/a" if r["trace_s"] != r["trace_s"] else f"{r['trace_s']:.2f}"  # NaN: traced with lower
             extra = [str(r["fusions"]) if "fusions" in r else "n/a",
                      f"{r['pair_ms']:.1f}" if "pair_ms" in r else "n/a",
                      f"{r['max_dT']:.1e}" if "max_dT" in r else "n/a"]
+            load = f"{r['load_cpu_s']:.2f}" if "load_cpu_s" in r else "n/a"
             lines.append(f"| {r['method']} | {r['part']} | {trace} | {r['lower_s']:.2f} | {r['compile_s']:.1f} | "
-                         f"{r['compile_cpu_s']:.1f} | {r['lines']} | " + " | ".join(extra) + " |")
+                         f"{r['compile_cpu_s']:.1f} | {load} | {r['lines']} | " + " | ".join(extra) + " |")
     if codegen:
         lines += ["", "## Where XLA's compilation of the default estimator goes", "",
                   "The default estimator compiled once more, in a child process with XLA's timing log on "
