@@ -1,6 +1,7 @@
 """Streaming odometry: :class:`Odometry` (frames in, poses out) and :func:`track`, a loop over it."""
 from __future__ import annotations
 
+import time
 from typing import Iterable, NamedTuple, Optional
 
 import jax
@@ -140,6 +141,12 @@ class Odometry:
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
         self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
+        #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
+        #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
+        #: (track: against the reference; retry; recover: against an older keyframe; window: a new
+        #: keyframe against the window's; fuse: a new reference against the old one), the window's
+        #: refinement under ``"window refinement"``. Poses are the same with or without it.
+        self.timings: Optional[dict] = None
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -154,8 +161,7 @@ class Odometry:
         pair = self.prepare(frame)
         if pair is None:
             return TrackStep(0, -1, None, self._first, True, None)
-        return self.finish(pair, estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
-                                                 init=pair.init, weights=pair.weights))
+        return self.finish(pair, self._estimate("track", pair.ref, pair.cur, pair.key, pair.init, pair.weights))
 
     def prepare(self, frame: Frame) -> Optional["PairInputs"]:
         """The first half of :meth:`add`: record the frame and return the inputs of its estimate
@@ -232,8 +238,8 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
             trust, calm = self._key_trust[k]
-            again = estimate_motion(self._frames[k], pair.cur, self.camera, self.config, key,
-                                    init=geometry.inverse(T_k_prev), weights=None if calm else trust)
+            again = self._estimate("recover", self._frames[k], pair.cur, key, geometry.inverse(T_k_prev),
+                                   None if calm else trust)
             judged_again = self._judge(again, T_k_prev, trust, extra)
             if judged_again.valid:
                 return k, again, judged_again
@@ -248,8 +254,7 @@ class Odometry:
         if j < 3 or not (self.valid[-1] and self.valid[-2]):
             return est, judged
         guess = pair.T_ref_prev @ geometry.inverse(self.poses[j - 2]) @ self.poses[j - 1]   # T_ref_guess
-        again = estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
-                                init=geometry.inverse(guess), weights=pair.weights)
+        again = self._estimate("retry", pair.ref, pair.cur, pair.key, geometry.inverse(guess), pair.weights)
         judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
         return (again, judged_again) if judged_again.valid else (est, judged)
 
@@ -276,12 +281,25 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights, trust=None):
+    def _estimate(self, purpose: str, ref: Frame, cur: Frame, key, init, weights) -> MotionEstimate:
+        """``estimate_motion(ref, cur, ...)`` with this odometry's camera and config; with
+        :attr:`timings` set (a dict), blocked on and its wall time appended under ``purpose``
+        (see :attr:`timings`)."""
+        if self.timings is None:
+            return estimate_motion(ref, cur, self.camera, self.config, key, init=init, weights=weights)
+        start = time.perf_counter()
+        est = jax.block_until_ready(estimate_motion(ref, cur, self.camera, self.config, key, init=init,
+                                                    weights=weights))
+        self.timings.setdefault(f"estimate: {purpose}", []).append(time.perf_counter() - start)
+        return est
+
+    def _estimate_against(self, purpose: str, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights,
+                          trust=None):
         """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess) with ``weights``. Returns (estimate, :meth:`_judge` of it with the
-        reference's static weights ``trust``, default ``weights``)."""
-        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
-                              init=geometry.inverse(T_ref_prev), weights=weights)
+        (float64 T_ref_guess) with ``weights`` (:meth:`_estimate` under ``purpose``). Returns
+        (estimate, :meth:`_judge` of it with the reference's static weights ``trust``, default
+        ``weights``)."""
+        est = self._estimate(purpose, self._frames[ref], frame, key, geometry.inverse(T_ref_prev), weights)
         return est, self._judge(est, T_ref_prev, weights if trust is None else trust)
 
     def _stale_allowance(self):
@@ -353,7 +371,7 @@ class Odometry:
         T_world_old = self._chain_pose(old)
         weights = self.static_map.trust(tuple(self._frames[new].depth.shape))
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
-        _, judged = self._estimate_against(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
+        _, judged = self._estimate_against("fuse", old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
                                            weights)
         if not judged.valid:
             return pose
@@ -434,7 +452,7 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_new = geometry.inverse(self._chain_pose(k)) @ pose
             trust, calm = self._key_trust[k]
-            est, judged = self._estimate_against(k, self._frames[new], key, T_k_new, None if calm else trust, trust)
+            est, judged = self._estimate_against("window", k, self._frames[new], key, T_k_new, None if calm else trust, trust)
             if judged.valid:
                 edges[(k, new)] = (judged.T, est.information)
         self._edges.update({e: (Z, np.asarray(info, np.float64)) for e, (Z, info) in edges.items()})
@@ -447,7 +465,10 @@ class Odometry:
         if len(nodes) < 2 or not graph_edges:
             return pose
         anchors = [self._chain_pose(k) for k in nodes[:-1]] + [pose]
-        refined = window.refine(anchors, graph_edges, policy.window)
+        start = time.perf_counter()
+        refined = window.refine(anchors, graph_edges, policy.window)   # host arrays: complete on return
+        if self.timings is not None:
+            self.timings.setdefault("window refinement", []).append(time.perf_counter() - start)
         # the frames after new start from the previous frame's pose relative to new's anchor: a
         # correction near the per-frame step limits would make their estimates look like jumps and
         # fail, so a window that disagrees that much with its chain is left as chained
