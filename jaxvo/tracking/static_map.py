@@ -51,8 +51,13 @@ def _occluded(est: MotionEstimate):
 def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
     """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
     fraction of the valid reference pixels it does not trust, fraction of them it trusts and
-    the current frame does not hide (``occluded_mask``), inlier ratio over those)."""
-    trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
+    the current frame does not hide (``occluded_mask``), inlier ratio over those).
+
+    The masks lie at the estimate's finest level (``Config.finest_level``), the weights at the
+    frames' size: every f-th weight is the one of the mask's pixel (f = 2^finest_level), as the
+    weights repeat the map's pixels (f <= 2^MAP_LEVEL)."""
+    f = max(1, weights.shape[0] // inlier_mask.shape[0])
+    trusted = (weights[::f, ::f] >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
     seen = valid_mask & trusted & ~occluded_mask
     valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = pixel_counts(
         valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted, seen, inlier_mask & seen)
