@@ -19,27 +19,66 @@ config); numeric config fields are traced, so ``jax.vmap`` over a field of
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import NamedTuple, Optional, Tuple, Union
+
+import jax
+import numpy as np
 
 from jaxvo.camera import Camera
 from jaxvo.config import Config
-from jaxvo.estimator.inputs import estimate_args
-from jaxvo.estimator.levels import _estimate, _estimate_call
+from jaxvo.estimator.inputs import as_float32, checked_config, estimate_args, num_levels
+from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids, _frame_pyramid
+from jaxvo.estimator.pyramid import Level
 from jaxvo.estimator.result import MotionEstimate
-from jaxvo.estimator.solvers import COMPILER_OPTIONS
-from jaxvo.frame import Frame
+from jaxvo.estimator.solvers import COMPILER_OPTIONS, jit
+from jaxvo.frame import Frame, validate_pair
 from jaxvo.runtime import aot
 
-__all__ = ["MotionEstimate", "estimate_motion"]
+__all__ = ["MotionEstimate", "PreparedFrame", "estimate_motion", "prepare_frame"]
 
 
-def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config] = None, key=None,
+class PreparedFrame(NamedTuple):
+    """A frame made ready for estimates (:func:`prepare_frame`): its pyramid is built once, and
+    every estimate it takes part in, as reference or as current frame, reads it.
+
+    frame: the :class:`Frame`. levels: its pyramid (:class:`jaxvo.estimator.pyramid.Level` per
+    level, index 0 = full resolution, float32 device arrays; ``weight`` None: the weights are an
+    estimate's own). max_depth: metres, the ``Config.max_depth`` it was built with.
+    """
+    frame: Frame
+    levels: Tuple[Level, ...]
+    max_depth: float
+
+
+_frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
+_estimate_pyramids_jit = jit(_estimate_pyramids)
+
+
+def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None) -> PreparedFrame:
+    """``frame`` made ready for :func:`estimate_motion` with ``camera`` and ``config`` (default
+    ``Config()``): its pyramid built once (one compiled program, dispatched without waiting).
+
+    A frame that takes part in several estimates (the odometry's current frame becomes the next
+    reference; retries and keyframe windows estimate it again) then skips rebuilding its pyramid
+    in each: ``estimate_motion(prepare_frame(a, ...), prepare_frame(b, ...), ...)`` gives bitwise the
+    estimate of ``estimate_motion(a, b, ...)``. ValueError as :func:`estimate_motion` for a bad frame.
+    """
+    config = checked_config(config, camera)
+    validate_pair(frame, frame, camera)
+    h, w = frame.intensity.shape
+    levels = _frame_pyramid_jit(as_float32(frame.intensity), as_float32(frame.depth), num_levels(config, w, h),
+                                np.float32(config.max_depth))
+    return PreparedFrame(frame, levels, float(config.max_depth))
+
+
+def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, PreparedFrame], camera: Camera, config: Optional[Config] = None, key=None,
                     init=None, weights=None) -> MotionEstimate:
     """Estimate the rigid motion between two RGB-D frames.
 
     Args:
       ref: reference (earlier) Frame: intensity (H, W) float32 0-255, depth (H, W) float32 metres, 0 = invalid.
-      cur: current (later) Frame, same size.
+      cur: current (later) Frame, same size. Either may be a :class:`PreparedFrame`
+        (:func:`prepare_frame`): its pyramid is then not built again.
       camera: intrinsics for (H, W) images.
       config: :class:`Config` (default: RANSAC with jaxvo's defaults; ``Config.paper()`` is the
         published algorithm).
@@ -58,8 +97,25 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
+    if isinstance(ref, PreparedFrame) or isinstance(cur, PreparedFrame):
+        return _estimate_prepared(ref, cur, camera, config, key, init, weights)
     args = estimate_args(ref, cur, camera, config, key, init, weights)
     # through the program exported into the cache folder when the cache is on (jaxvo.runtime.cache,
     # by default): a second process then skips tracing; else plain jit (the arguments as a
     # plain tuple: the pytree, and so the exported program's name, as the estimate's signature)
     return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))
+
+
+def _estimate_prepared(ref, cur, camera: Camera, config: Optional[Config], key, init, weights) -> MotionEstimate:
+    """:func:`estimate_motion` where a frame is a :class:`PreparedFrame` (the other is prepared here)."""
+    config = checked_config(config, camera)
+    ref, cur = (x if isinstance(x, PreparedFrame) else prepare_frame(x, camera, config) for x in (ref, cur))
+    args = estimate_args(ref.frame, cur.frame, camera, config, key, init, weights)   # the same checks
+    h, w = ref.frame.intensity.shape
+    for name, p in (("reference", ref), ("current", cur)):
+        if len(p.levels) != num_levels(config, w, h) or p.max_depth != float(config.max_depth):
+            raise ValueError(f"{name} frame was prepared for another config ({len(p.levels)} levels, max_depth "
+                             f"{p.max_depth}); prepare it with this one (jaxvo.estimator.prepare_frame)")
+    leaves = (ref.levels, cur.levels, camera, config, args.key, args.T_init, args.ref_weight)
+    return MotionEstimate(*aot.call("estimate_pyramids", _estimate_pyramids, _estimate_pyramids_jit, leaves,
+                                    COMPILER_OPTIONS))

@@ -12,7 +12,7 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame
-from jaxvo.estimator import MotionEstimate, checked_config, checked_key, estimate_motion
+from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, prepare_frame
 from jaxvo.tracking import segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
@@ -132,6 +132,7 @@ class Odometry:
         self.inlier_ratio: list = []
         self.references: list = []
         self._frames: dict = {}         # index -> Frame that may still serve as reference
+        self._pyramids: dict = {}       # index -> its PreparedFrame, made at its first estimate
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
@@ -161,7 +162,8 @@ class Odometry:
         pair = self.prepare(frame)
         if pair is None:
             return TrackStep(0, -1, None, self._first, True, None)
-        return self.finish(pair, self._estimate("track", pair.ref, pair.cur, pair.key, pair.init, pair.weights))
+        j = len(self.poses)
+        return self.finish(pair, self._estimate("track", self._ref, j, pair.key, pair.init, pair.weights))
 
     def prepare(self, frame: Frame) -> Optional["PairInputs"]:
         """The first half of :meth:`add`: record the frame and return the inputs of its estimate
@@ -238,7 +240,7 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
             trust, calm = self._key_trust[k]
-            again = self._estimate("recover", self._frames[k], pair.cur, key, geometry.inverse(T_k_prev),
+            again = self._estimate("recover", k, j, key, geometry.inverse(T_k_prev),
                                    None if calm else trust)
             judged_again = self._judge(again, T_k_prev, trust, extra)
             if judged_again.valid:
@@ -254,7 +256,7 @@ class Odometry:
         if j < 3 or not (self.valid[-1] and self.valid[-2]):
             return est, judged
         guess = pair.T_ref_prev @ geometry.inverse(self.poses[j - 2]) @ self.poses[j - 1]   # T_ref_guess
-        again = self._estimate("retry", pair.ref, pair.cur, pair.key, geometry.inverse(guess), pair.weights)
+        again = self._estimate("retry", self._ref, j, pair.key, geometry.inverse(guess), pair.weights)
         judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
         return (again, judged_again) if judged_again.valid else (est, judged)
 
@@ -281,25 +283,33 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate(self, purpose: str, ref: Frame, cur: Frame, key, init, weights) -> MotionEstimate:
-        """``estimate_motion(ref, cur, ...)`` with this odometry's camera and config; with
-        :attr:`timings` set (a dict), blocked on and its wall time appended under ``purpose``
-        (see :attr:`timings`)."""
+    def _prepared(self, i: int) -> PreparedFrame:
+        """Frame i made ready for estimates (its pyramid), once while the odometry holds the frame."""
+        if i not in self._pyramids:
+            self._pyramids[i] = prepare_frame(self._frames[i], self.camera, self.config)
+        return self._pyramids[i]
+
+    def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
+        """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
+        and config, from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
+        estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
+        time appended under ``purpose`` (see :attr:`timings`)."""
         if self.timings is None:
-            return estimate_motion(ref, cur, self.camera, self.config, key, init=init, weights=weights)
+            return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config, key, init=init,
+                                   weights=weights)
         start = time.perf_counter()
-        est = jax.block_until_ready(estimate_motion(ref, cur, self.camera, self.config, key, init=init,
-                                                    weights=weights))
+        est = jax.block_until_ready(estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config,
+                                                    key, init=init, weights=weights))
         self.timings.setdefault(f"estimate: {purpose}", []).append(time.perf_counter() - start)
         return est
 
-    def _estimate_against(self, purpose: str, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights,
+    def _estimate_against(self, purpose: str, ref: int, frame: int, key, T_ref_prev: np.ndarray, weights,
                           trust=None):
-        """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
+        """Estimate frame ``frame`` against reference ``ref`` (indices) from the initial guess ``T_ref_prev``
         (float64 T_ref_guess) with ``weights`` (:meth:`_estimate` under ``purpose``). Returns
         (estimate, :meth:`_judge` of it with the reference's static weights ``trust``, default
         ``weights``)."""
-        est = self._estimate(purpose, self._frames[ref], frame, key, geometry.inverse(T_ref_prev), weights)
+        est = self._estimate(purpose, ref, frame, key, geometry.inverse(T_ref_prev), weights)
         return est, self._judge(est, T_ref_prev, weights if trust is None else trust)
 
     def _stale_allowance(self):
@@ -371,7 +381,7 @@ class Odometry:
         T_world_old = self._chain_pose(old)
         weights = self.static_map.trust(tuple(self._frames[new].depth.shape))
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
-        _, judged = self._estimate_against("fuse", old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
+        _, judged = self._estimate_against("fuse", old, new, key, geometry.inverse(T_world_old) @ pose,
                                            weights)
         if not judged.valid:
             return pose
@@ -398,6 +408,7 @@ class Odometry:
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
         for old in [i for i in self._frames if i < self._ref and i not in self._window]:
             del self._frames[old]
+            self._pyramids.pop(old, None)
         for old in [i for i in self._info if i < self._ref - 2 * policy.max_gap]:
             del self._info[old]
         for old in [i for i in self._key_trust if i not in self._window]:
@@ -452,7 +463,7 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_new = geometry.inverse(self._chain_pose(k)) @ pose
             trust, calm = self._key_trust[k]
-            est, judged = self._estimate_against("window", k, self._frames[new], key, T_k_new, None if calm else trust, trust)
+            est, judged = self._estimate_against("window", k, new, key, T_k_new, None if calm else trust, trust)
             if judged.valid:
                 edges[(k, new)] = (judged.T, est.information)
         self._edges.update({e: (Z, np.asarray(info, np.float64)) for e, (Z, info) in edges.items()})
