@@ -31,7 +31,7 @@ from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids
 from jaxvo.estimator.pyramid import Level
 from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import COMPILER_OPTIONS, jit
-from jaxvo.frame import Frame, validate_pair
+from jaxvo.frame import Frame, validate_frame
 from jaxvo.runtime import aot
 
 __all__ = ["MotionEstimate", "PreparedFrame", "estimate_motion", "prepare_frame"]
@@ -54,17 +54,18 @@ _frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
 _estimate_pyramids_jit = jit(_estimate_pyramids)
 
 
-def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None) -> PreparedFrame:
+def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None, what: str = "frame") -> PreparedFrame:
     """``frame`` made ready for :func:`estimate_motion` with ``camera`` and ``config`` (default
     ``Config()``): its pyramid built once (one compiled program, dispatched without waiting).
 
     A frame that takes part in several estimates (the odometry's current frame becomes the next
     reference; retries and keyframe windows estimate it again) then skips rebuilding its pyramid
     in each: ``estimate_motion(prepare_frame(a, ...), prepare_frame(b, ...), ...)`` gives bitwise the
-    estimate of ``estimate_motion(a, b, ...)``. ValueError as :func:`estimate_motion` for a bad frame.
+    estimate of ``estimate_motion(a, b, ...)``. ValueError as :func:`estimate_motion` for a bad frame,
+    naming it ``what``.
     """
     config = checked_config(config, camera)
-    validate_pair(frame, frame, camera)
+    validate_frame(frame, camera, what)
     h, w = frame.intensity.shape
     levels = _frame_pyramid_jit(as_float32(frame.intensity), as_float32(frame.depth), num_levels(config, w, h),
                                 np.float32(config.max_depth))

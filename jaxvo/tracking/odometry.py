@@ -132,7 +132,7 @@ class Odometry:
         self.inlier_ratio: list = []
         self.references: list = []
         self._frames: dict = {}         # index -> Frame that may still serve as reference
-        self._pyramids: dict = {}       # index -> its PreparedFrame, made at its first estimate
+        self._pyramids: dict = {}       # index -> its PreparedFrame, while the frame is held
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
@@ -146,7 +146,8 @@ class Odometry:
         #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
         #: (track: against the reference; retry; recover: against an older keyframe; window: a new
         #: keyframe against the window's; fuse: a new reference against the old one), the window's
-        #: refinement under ``"window refinement"``. Poses are the same with or without it.
+        #: refinement under ``"window refinement"``, each frame's pyramid under ``"frame pyramid"``.
+        #: Poses are the same with or without it.
         self.timings: Optional[dict] = None
 
     def __len__(self) -> int:
@@ -172,7 +173,13 @@ class Odometry:
         check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
         self._frames[j] = frame
-        self.static_map.add(j, frame)
+        # its pyramid, which every estimate it takes part in reads, and which holds the segmentation's inputs
+        start = time.perf_counter()
+        self._pyramids[j] = prepare_frame(frame, self.camera, self.config, f"frame {j}")
+        if self.timings is not None:
+            jax.block_until_ready(self._pyramids[j].levels)
+            self.timings.setdefault("frame pyramid", []).append(time.perf_counter() - start)
+        self.static_map.add(j, frame, self._pyramids[j].levels)
         if j == 0:
             self.poses.append(self._first)
             if self.policy.window > 1:
@@ -284,9 +291,7 @@ class Odometry:
         return failed
 
     def _prepared(self, i: int) -> PreparedFrame:
-        """Frame i made ready for estimates (its pyramid), once while the odometry holds the frame."""
-        if i not in self._pyramids:
-            self._pyramids[i] = prepare_frame(self._frames[i], self.camera, self.config)
+        """Frame i made ready for estimates (its pyramid, made by :meth:`prepare`)."""
         return self._pyramids[i]
 
     def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:

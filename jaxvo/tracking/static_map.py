@@ -228,10 +228,18 @@ class StaticMap:
         self.tested = 0
         self.compiling: Optional[threading.Thread] = None
 
-    def add(self, j: int, frame: Frame) -> None:
-        """Keep frame j's map inputs; the first frame starts an empty map and compiles the programs ahead."""
-        self.depths[j], self.cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
-                                                   self.max_depth)
+    def add(self, j: int, frame: Frame, levels=None) -> None:
+        """Keep frame j's map inputs; the first frame starts an empty map and compiles the programs ahead.
+
+        levels: the frame's pyramid (:class:`jaxvo.estimator.PreparedFrame` ``levels``, built with this
+        map's ``max_depth``), whose levels are the map's inputs (the same 2x2 means) where it
+        reaches the motion test's level; else they are computed from the frame."""
+        if levels is not None and len(levels) > segmentation.CUE_LEVEL:
+            cue = levels[segmentation.CUE_LEVEL]
+            self.depths[j], self.cues[j] = levels[segmentation.MAP_LEVEL].depth, (cue.intensity, cue.depth)
+        else:
+            self.depths[j], self.cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
+                                                       self.max_depth)
         if j == 0:
             self.L = jnp.full(self.depths[0].shape, self.params.prior, jnp.float32)
             self.flags = jnp.zeros(self.depths[0].shape, bool)
@@ -322,7 +330,7 @@ class NoStaticMap:
     """:class:`StaticMap`'s no-op counterpart, without segmentation: no weights (every pixel
     used as it is), no static mask, nothing kept or updated."""
 
-    def add(self, j: int, frame: Frame) -> None:
+    def add(self, j: int, frame: Frame, levels=None) -> None:
         pass
 
     def trust(self, shape) -> None:
