@@ -13,9 +13,11 @@ Methods (``Config.method``):
 * ``"huber"``: IRLS with Huber weights (k = 1.345 sigma, sigma by MAD each round);
 * ``"ransac"``: the paper's RANSAC per pyramid level, then least squares on the consensus set.
 
-The whole estimate is one jit-compiled function per (image shape, static
-config); numeric config fields are traced, so ``jax.vmap`` over a field of
-``Config`` is a hyperparameter sweep compiled once.
+The estimate is two jit-compiled programs per (image shape, static config): each frame's
+pyramid (:func:`prepare_frame`, kept by a caller whose frames take part in several estimates)
+and the coarse-to-fine estimate from the two pyramids. Numeric config fields are traced, so
+``jax.vmap`` over a field of ``Config`` is a hyperparameter sweep compiled once (inside a
+caller's ``vmap`` or ``jit`` the estimate is one program, pyramids included).
 """
 from __future__ import annotations
 
@@ -52,6 +54,24 @@ class PreparedFrame(NamedTuple):
 
 _frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
 _estimate_pyramids_jit = jit(_estimate_pyramids)
+_estimate_pyramids_nested = jax.jit(_estimate_pyramids)
+
+
+def _estimate_pyramids_call(*args):
+    """``_estimate_pyramids_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested
+    jit with compiler options) the plain jit, which then runs with the caller's program's options."""
+    try:
+        return _estimate_pyramids_jit(*args)
+    except ValueError as e:
+        if "compiler_options" not in str(e):
+            raise
+        return _estimate_pyramids_nested(*args)
+
+
+def _pyramid(intensity, depth, config: Config) -> Tuple[Level, ...]:
+    """The pyramid of checked float32 (H, W) images for ``config`` (:func:`_frame_pyramid`)."""
+    h, w = intensity.shape
+    return _frame_pyramid_jit(intensity, depth, num_levels(config, w, h), np.float32(config.max_depth))
 
 
 def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None, what: str = "frame") -> PreparedFrame:
@@ -61,15 +81,13 @@ def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None,
     A frame that takes part in several estimates (the odometry's current frame becomes the next
     reference; retries and keyframe windows estimate it again) then skips rebuilding its pyramid
     in each: ``estimate_motion(prepare_frame(a, ...), prepare_frame(b, ...), ...)`` gives bitwise the
-    estimate of ``estimate_motion(a, b, ...)``. ValueError as :func:`estimate_motion` for a bad frame,
+    estimate of ``estimate_motion(a, b, ...)``, which prepares both frames itself. ValueError as :func:`estimate_motion` for a bad frame,
     naming it ``what``.
     """
     config = checked_config(config, camera)
     validate_frame(frame, camera, what)
-    h, w = frame.intensity.shape
-    levels = _frame_pyramid_jit(as_float32(frame.intensity), as_float32(frame.depth), num_levels(config, w, h),
-                                np.float32(config.max_depth))
-    return PreparedFrame(frame, levels, float(config.max_depth))
+    return PreparedFrame(frame, _pyramid(as_float32(frame.intensity), as_float32(frame.depth), config),
+                         float(config.max_depth))
 
 
 def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, PreparedFrame], camera: Camera, config: Optional[Config] = None, key=None,
@@ -98,25 +116,25 @@ def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, Prepared
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
-    if isinstance(ref, PreparedFrame) or isinstance(cur, PreparedFrame):
-        return _estimate_prepared(ref, cur, camera, config, key, init, weights)
-    args = estimate_args(ref, cur, camera, config, key, init, weights)
+    frames = [x.frame if isinstance(x, PreparedFrame) else x for x in (ref, cur)]
+    args = estimate_args(frames[0], frames[1], camera, config, key, init, weights)   # every check
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args)):
+        # inside a caller's jax.vmap / jax.jit (e.g. a sweep over a Config field): one program
+        # with both pyramids, as the caller traces it anyway
+        return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))
+    config = args.config
+    h, w = frames[0].intensity.shape
+    for name, p in (("reference", ref), ("current", cur)):
+        if isinstance(p, PreparedFrame) and (len(p.levels) != num_levels(config, w, h)
+                                             or p.max_depth != float(config.max_depth)):
+            raise ValueError(f"{name} frame was prepared for another config ({len(p.levels)} levels, max_depth "
+                             f"{p.max_depth}); prepare it with this one (jaxvo.estimator.prepare_frame)")
+    # the frames' pyramids, then the estimate from them: the program an odometry's prepared frames
+    # run too (one compilation serves both)
+    ref_levels = ref.levels if isinstance(ref, PreparedFrame) else _pyramid(args.ref_intensity, args.ref_depth, config)
+    cur_levels = cur.levels if isinstance(cur, PreparedFrame) else _pyramid(args.cur_intensity, args.cur_depth, config)
+    leaves = (ref_levels, cur_levels, camera, config, args.key, args.T_init, args.ref_weight)
     # through the program exported into the cache folder when the cache is on (jaxvo.runtime.cache,
     # by default): a second process then skips tracing; else plain jit (the arguments as a
     # plain tuple: the pytree, and so the exported program's name, as the estimate's signature)
-    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))
-
-
-def _estimate_prepared(ref, cur, camera: Camera, config: Optional[Config], key, init, weights) -> MotionEstimate:
-    """:func:`estimate_motion` where a frame is a :class:`PreparedFrame` (the other is prepared here)."""
-    config = checked_config(config, camera)
-    ref, cur = (x if isinstance(x, PreparedFrame) else prepare_frame(x, camera, config) for x in (ref, cur))
-    args = estimate_args(ref.frame, cur.frame, camera, config, key, init, weights)   # the same checks
-    h, w = ref.frame.intensity.shape
-    for name, p in (("reference", ref), ("current", cur)):
-        if len(p.levels) != num_levels(config, w, h) or p.max_depth != float(config.max_depth):
-            raise ValueError(f"{name} frame was prepared for another config ({len(p.levels)} levels, max_depth "
-                             f"{p.max_depth}); prepare it with this one (jaxvo.estimator.prepare_frame)")
-    leaves = (ref.levels, cur.levels, camera, config, args.key, args.T_init, args.ref_weight)
-    return MotionEstimate(*aot.call("estimate_pyramids", _estimate_pyramids, _estimate_pyramids_jit, leaves,
-                                    COMPILER_OPTIONS))
+    return MotionEstimate(*aot.call("estimate", _estimate_pyramids, _estimate_pyramids_call, leaves, COMPILER_OPTIONS))
