@@ -1,21 +1,28 @@
-"""Speed of jaxvo per 640x480 frame pair, against OpenCV / Open3D in the same process.
+"""Speed of jaxvo per 640x480 frame, against OpenCV / Open3D in the same process.
 
 Sections of the report (``speed.md`` + ``speed.json``):
 
 1. Per method (classic, huber, ransac) on static pairs (TUM freiburg2_desk) and
-   dynamic pairs (Bonn crowd): median / p90 ms, FPS, compile time (the first call:
-   trace + XLA compile + one run, measured separately), RANSAC hypotheses actually
-   evaluated (with early exit; summed over the pyramid levels), next to the
-   paper's Table III (25 FPS classic / Huber, 14 FPS RANSAC static, 2 FPS dynamic).
+   dynamic pairs (Bonn crowd), by default every consecutive pair of each sequence: mean /
+   median / p90 ms, FPS, compile time (the first call: trace + XLA compile + one run, measured
+   separately), RANSAC hypotheses actually evaluated (with early exit; summed over the pyramid
+   levels), next to the paper's Table III (25 FPS classic / Huber, 14 FPS RANSAC static, 2 FPS
+   dynamic).
 2. Per pyramid level: ``Config(finest_level=l)`` stops after level l, so the time
    of level l is t(finest_level=l) - t(finest_level=l+1) (level L-1, the coarsest,
    is t(finest_level=L-1); each finest_level compiles once more).
 3. Peers (OpenCV rgb / depth / rgbd; Open3D color / hybrid when installed) on
-   the identical pairs, and ratio columns jaxvo time / peer time.
-4. Batch throughput: B frame pairs stacked and processed as one ``jax.jit(jax.vmap(
+   the identical pairs, and ratio columns jaxvo time / peer time (means).
+4. The default odometry (``Odometry`` with ``TrackConfig()``, and its single reference) over
+   whole sequences, against OpenCV rgb over the same pairs in alternating passes (mean and
+   median per frame, their ratios), and a profiled pass that says where its time goes: each
+   estimate by purpose (against the reference, retries, recoveries, the window's), each
+   segmentation call, the window's refinement, and the host's own work.
+5. Stages of one estimate per level (points, hypotheses, scoring, refinement, pyramid).
+6. Batch throughput: B frame pairs stacked and processed as one ``jax.jit(jax.vmap(
    estimate_motion))`` call, pairs per second vs the one-pair-at-a-time loop, on CPU
    and, when jax sees a GPU, on the GPU.
-5. Memory: peak RSS (``resource.getrusage``) of the process after each section, and
+7. Memory: peak RSS (``resource.getrusage``) of the process after each section, and
    ``jaxvo.track`` over 50 vs 500 frames of a synthetic sequence fed lazily (see
    ``--track-frames``): the RSS must not grow with the number of frames.
 
@@ -51,7 +58,8 @@ def parse_args(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("--static", default=None, help=f"static sequence folder (default data_root()/tum/{STATIC})")
     ap.add_argument("--dynamic", default=None, help=f"dynamic sequence folder (default data_root()/bonn/{DYNAMIC})")
-    ap.add_argument("--pairs", type=int, default=20, help="frame pairs per sequence (default 20)")
+    ap.add_argument("--pairs", type=int, default=0,
+                    help="frame pairs per sequence, spread over it (default 0: every consecutive pair)")
     ap.add_argument("--repeats", type=int, default=3, help="timed passes over the pairs (default 3)")
     ap.add_argument("--methods", default="classic,huber,ransac", help="jaxvo methods (default all three)")
     ap.add_argument("--peers", default="peers", help="peer names, comma list; 'peers' = all available, "
@@ -69,9 +77,9 @@ def parse_args(argv=None):
     ap.add_argument("--stages", default="ransac,classic",
                     help="methods for the per-stage breakdown (default ransac,classic; 'none' = skip)")
     ap.add_argument("--stage-pairs", type=int, default=5, help="pairs per set for the stage breakdown (default 5)")
-    ap.add_argument("--default-frames", type=int, default=30,
-                    help="consecutive frames per sequence for the default odometry (Odometry + TrackConfig(); "
-                         "default 30, 0 = skip)")
+    ap.add_argument("--default-frames", type=int, default=0,
+                    help="the default odometry (Odometry + TrackConfig()) over the first N frames of each "
+                         "sequence (default 0: the whole sequence; -1: skip)")
     ap.add_argument("--quick", action="store_true",
                     help="tiny CI run: 2 pairs, 1 repeat, first method only, coarsest level only, "
                          "batch 2, track 3 vs 6 frames, OpenCV rgb peer only")
@@ -82,7 +90,7 @@ def parse_args(argv=None):
         if m not in METHODS:
             raise SystemExit(f"unknown method {m!r}; choose from {METHODS}")
     if args.quick:
-        args.pairs, args.repeats = min(args.pairs, 2), 1
+        args.pairs, args.repeats = (2 if args.pairs <= 0 else min(args.pairs, 2)), 1
         args.methods = args.methods[:1]
         if args.peers == "peers":
             args.peers = "opencv-rgb"
@@ -98,7 +106,7 @@ def parse_args(argv=None):
         args.stage_pairs = 1
         if args.stages == "ransac,classic":
             args.stages = args.methods[0]
-        args.default_frames = min(args.default_frames, 4)
+        args.default_frames = 4 if args.default_frames == 0 else min(args.default_frames, 4)
     args.level_methods = (args.methods if args.level_methods is None else
                           [] if args.level_methods == "none" else args.level_methods.split(","))
     args.stages = [] if args.stages == "none" else [m for m in args.stages.split(",") if m]
@@ -114,7 +122,8 @@ def load_pairs(path, n_pairs: int, name: str):
     """n_pairs consecutive pairs (k, k+1) spread evenly over the sequence; frames decoded into memory."""
     seq = common.open_sequence(path)
     N = len(seq)
-    starts = np.unique(np.linspace(0, N - 2, num=min(n_pairs, N - 1)).round().astype(int))
+    n_pairs = N - 1 if n_pairs <= 0 else min(n_pairs, N - 1)
+    starts = np.unique(np.linspace(0, N - 2, num=n_pairs).round().astype(int))
     idx = sorted(set(starts.tolist()) | set((starts + 1).tolist()))
     frames_by_idx = {i: seq.frame(i) for i in idx}
     order = {i: k for k, i in enumerate(idx)}
@@ -370,64 +379,116 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     return rows
 
 
-def time_default(paths, frames_n: int, peer_ms, key):
-    """Per-frame wall time of the default odometry (``Odometry`` with ``TrackConfig()``: keyframes
-    and the carried segmentation), after a warm-up pass over the same frames compiled everything,
-    and the time spent in the segmentation's map updates (wrapped and blocked on)."""
+class _TimedStaticMap:
+    """A :class:`jaxvo.tracking.static_map.StaticMap` whose public calls are blocked on and timed
+    (seconds appended to ``timings["map: <call>"]``): the same programs and results, the time of
+    each segmentation step apart from the estimates'."""
 
-    from jaxvo.tracking import static_map
-    from jaxvo.tracking.odometry import Odometry
+    @staticmethod
+    def make(camera, max_depth, params, timings):
+        from jaxvo.tracking import static_map
+
+        def timed(name, method, result):
+            def call(self, *a, **k):
+                start = time.perf_counter()
+                out = method(self, *a, **k)
+                jax.block_until_ready(result(self, out))
+                timings.setdefault(f"map: {name}", []).append(time.perf_counter() - start)
+                return out
+            return call
+
+        base = static_map.StaticMap
+        state = lambda self, out: (self.L, self.flags)      # noqa: E731
+        cls = type("TimedStaticMap", (base,), {
+            "add": timed("frame inputs", base.add, lambda self, out: (self.depths, self.cues)),
+            "trust": timed("static weights", base.trust, lambda self, out: out),
+            "read": timed("read an estimate", base.read, lambda self, out: out),
+            "update": timed("vote", base.update, state),
+            "new_reference": timed("new reference", base.new_reference, state),
+        })
+        return cls(camera, max_depth, params)
+
+
+#: the default odometry and its single-reference variant, timed over whole sequences
+DEFAULT_POLICIES = (("default (TrackConfig())", {}), ("single reference (window=1)", {"window": 1}))
+
+
+def time_default(sets, repeats: int, key):
+    """The default odometry over whole sequences against OpenCV's RGB odometry over the same
+    consecutive pairs, in interleaved passes, and where its time goes.
+
+    sets: name -> (sequence, frames decoded into memory). Per set and policy: one warm-up pass
+    (``compile_s``: its wall time minus the timed passes' mean, i.e. what compiling cost), then
+    ``repeats`` passes of ``Odometry.add`` over every frame alternating with passes of OpenCV over
+    every consecutive pair; per-frame mean and median over all timed passes, and their ratios.
+    Then one profiled pass (``Odometry.timings`` and a timed segmentation, blocked on each call):
+    ms per frame by part, the host's own work (policy, bookkeeping, transfers) the rest."""
     from jaxvo.config import TrackConfig
+    from jaxvo.tracking.odometry import Odometry
 
-    rows = []
-    for set_name, path in paths.items():
-        seq = common.open_sequence(path, max_frames=frames_n)
-        frames = common.load_frames(seq)
-        for label, policy in (("default (TrackConfig())", TrackConfig()),
-                              ("default without segmentation", TrackConfig(segment=False))):
-            t0 = time.perf_counter()
-            odo = Odometry(seq.camera, Config(), key, policy)
-            odo.add(frames[0])
-            odo.add(frames[1])
-            first = time.perf_counter() - t0
-            for f in frames[2:]:
-                odo.add(f)
-            spent = {"map update": [], "new reference map": [], "later motion test": []}
+    rows, parts = [], []
+    for set_name, (seq, frames) in sets.items():
+        opencv = common.run_method("opencv-rgb", frames, seq.camera)   # warm-up included
+        cv_secs = [opencv["seconds"]]
+        for label, changes in DEFAULT_POLICIES:
+            policy = TrackConfig(**changes)
 
-            def timed(name, fn):
-                def call(*a):
+            def one_pass(profile=False):
+                odo = Odometry(seq.camera, Config(), key, policy)
+                if profile:
+                    odo.timings = {}
+                    odo.static_map = _TimedStaticMap.make(seq.camera, odo.config.max_depth, odo.params, odo.timings)
+                secs = []
+                for f in frames:
                     t = time.perf_counter()
-                    out = jax.block_until_ready(fn(*a))
-                    spent[name].append(time.perf_counter() - t)
-                    return out
-                return staticmethod(call)
+                    odo.add(f)
+                    secs.append(time.perf_counter() - t)
+                return odo, np.asarray(secs)   # frame 0: no estimate, its map inputs
 
-            class TimedStaticMap(static_map.StaticMap):   # the same programs, each call timed
-                update_program = timed("map update", static_map.StaticMap.update_program)
-                new_reference_program = timed("new reference map", static_map.StaticMap.new_reference_program)
-                later_motion_test_program = timed("later motion test",
-                                                  static_map.StaticMap.later_motion_test_program)
-
-            odo = Odometry(seq.camera, Config(), key, policy)
-            if policy.segment:
-                odo.static_map = TimedStaticMap(seq.camera, odo.config.max_depth, odo.params)
+            t0 = time.perf_counter()
+            odo, _ = one_pass()
+            warm = time.perf_counter() - t0
             secs = []
-            for f in frames:
-                t = time.perf_counter()
-                odo.add(f)
-                secs.append(time.perf_counter() - t)
-            st = common.timing_stats(secs[1:])
-            n = len(frames) - 1
-            rows.append({"method": label, "set": set_name, "frames": len(frames), **st,
-                         "first_s": first, "ratio_opencv": st["median_ms"] / peer_ms[set_name]
-                         if set_name in peer_ms else None,
-                         "map_update_ms": 1000 * sum(spent["map update"]) / n,
-                         "new_ref_ms": 1000 * (sum(spent["new reference map"]) + sum(spent["later motion test"])) / n,
-                         "switches": len(spent["new reference map"])})
-            common.log(f"  {label} {set_name}: median {st['median_ms']:.1f} ms/frame, first two frames "
-                       f"{first:.1f} s, map updates {rows[-1]['map_update_ms']:.1f} + "
-                       f"{rows[-1]['new_ref_ms']:.1f} ms/frame")
-    return rows
+            for _ in range(repeats):
+                secs.append(one_pass()[1][1:])
+                cv_secs.append(common.run_method("opencv-rgb", frames, seq.camera, warmup=False)["seconds"])
+            st = common.timing_stats(np.concatenate(secs))
+            cv = common.timing_stats(np.concatenate(cv_secs))
+            held = int(np.sum(~np.asarray(odo.valid)))
+            rows.append({"method": label, "set": set_name, "sequence": seq.name, "frames": len(frames), **st,
+                         "opencv_mean_ms": cv["mean_ms"], "opencv_median_ms": cv["median_ms"],
+                         "ratio_mean": st["mean_ms"] / cv["mean_ms"], "ratio_median": st["median_ms"] / cv["median_ms"],
+                         "compile_s": max(0.0, warm - float(np.mean([s.sum() for s in secs]))), "held": held,
+                         "switches": len(set(odo.references))})
+            common.log(f"  {label} {set_name}: mean {st['mean_ms']:.1f} ms/frame (median {st['median_ms']:.1f}); "
+                       f"OpenCV mean {cv['mean_ms']:.1f} ({cv['median_ms']:.1f}): {rows[-1]['ratio_mean']:.2f}x mean, "
+                       f"{rows[-1]['ratio_median']:.2f}x median")
+            odo, psecs = one_pass(profile=True)
+            total = float(psecs.sum())     # frame 0 included: its map inputs are timed too
+            n = len(psecs) - 1
+            timed = 0.0
+            for part, ts in sorted(odo.timings.items(), key=lambda kv: -sum(kv[1])):
+                timed += sum(ts)
+                parts.append({"method": label, "set": set_name, "part": part, "calls": len(ts),
+                              "calls_per_frame": len(ts) / n, "ms_per_call": 1000 * float(np.mean(ts)),
+                              "ms_per_frame": 1000 * sum(ts) / n, "share": sum(ts) / total})
+            parts.append({"method": label, "set": set_name, "part": "host (policy, bookkeeping, transfers)",
+                          "calls": None, "calls_per_frame": None, "ms_per_call": None,
+                          "ms_per_frame": 1000 * (total - timed) / n, "share": (total - timed) / total})
+            parts.append({"method": label, "set": set_name, "part": "profiled pass, all", "calls": n,
+                          "calls_per_frame": 1.0, "ms_per_call": 1000 * total / n,
+                          "ms_per_frame": 1000 * total / n, "share": 1.0})
+    return rows, parts
+
+
+def _default_targets(rows):
+    """The issue's target for the default odometry: <= 0.5x OpenCV rgb, mean over the whole sequence."""
+    out = ["Target: the default <= 0.5x OpenCV rgb per frame, mean over the whole sequence.", ""]
+    for r in rows:
+        if r["method"] == DEFAULT_POLICIES[0][0]:
+            verdict = "met" if r["ratio_mean"] <= 0.5 else f"NOT met ({r['ratio_mean'] / 0.5:.2f}x the limit)"
+            out.append(f"- {r['set']} ({r['sequence']}, {r['frames']} frames): {r['ratio_mean']:.2f}x mean -> {verdict}")
+    return out + [""]
 
 
 def _one_pair(ri, rd, ci, cd, key, camera, config):
@@ -554,10 +615,14 @@ def main(argv=None) -> Path:
     srows = []
     for m in args.stages:
         srows += time_stages(sets, Config(method=m), args.stage_pairs, args.repeats, key)
-    common.log("[speed] default odometry (Odometry + TrackConfig())")
-    opencv_ms = {p["set"]: p["median_ms"] for p in prows if p["method"] == "opencv-rgb"}
-    drows = (time_default({"static": static[0].path, "dynamic": dynamic[0].path}, args.default_frames, opencv_ms, key)
-             if args.default_frames else [])
+    common.log("[speed] default odometry (Odometry + TrackConfig()) over whole sequences")
+    drows, dparts = [], []
+    if args.default_frames >= 0:
+        whole = {}
+        for name, (seq, _, _) in sets.items():
+            seq = common.open_sequence(seq.path, max_frames=args.default_frames or None)
+            whole[name] = (seq, common.load_frames(seq))
+        drows, dparts = time_default(whole, args.repeats, key)
     common.log("[speed] batch (vmap over pairs)")
     brows = (time_batches(*static, args.batch, args.batch_method, args.repeats, key) if args.batch else [])
     common.log("[speed] track memory")
@@ -566,10 +631,10 @@ def main(argv=None) -> Path:
     # ratio table: jaxvo median / peer median on the same set
     ratio_rows = []
     for mr in mrows:
-        r = {"method": mr["method"], "set": mr["set"], "median_ms": mr["median_ms"]}
+        r = {"method": mr["method"], "set": mr["set"], "mean_ms": mr["mean_ms"]}
         for pr in prows:
             if pr["set"] == mr["set"]:
-                r[pr["method"]] = mr["median_ms"] / pr["median_ms"]
+                r[pr["method"]] = mr["mean_ms"] / pr["mean_ms"]
         ratio_rows.append(r)
     peer_cols = list(dict.fromkeys(p["method"] for p in prows))
 
@@ -591,8 +656,8 @@ def main(argv=None) -> Path:
         "## Per method", "",
     ]
     lines += common.md_table(mrows, [
-        ("method", "method", ""), ("pairs", "set", ""), ("median ms", "median_ms", ".1f"),
-        ("p90 ms", "p90_ms", ".1f"), ("FPS", "fps", ".1f"), ("paper FPS (Table III)", "paper_fps", ".0f"),
+        ("method", "method", ""), ("pairs", "set", ""), ("mean ms", "mean_ms", ".1f"),
+        ("median ms", "median_ms", ".1f"), ("p90 ms", "p90_ms", ".1f"), ("FPS", "fps", ".1f"), ("paper FPS (Table III)", "paper_fps", ".0f"),
         ("compile s", "compile_s", ".1f"), ("RANSAC hyps mean", "hypotheses_mean", ".1f"),
         ("RANSAC hyps max", "hypotheses_max", "d")]) + [""]
     if lrows:
@@ -605,30 +670,45 @@ def main(argv=None) -> Path:
     if prows:
         lines += ["## Peers on the same pairs", ""]
         lines += common.md_table(prows, [("peer", "method", ""), ("pairs", "set", ""),
-                                         ("median ms", "median_ms", ".1f"), ("p90 ms", "p90_ms", ".1f"),
-                                         ("FPS", "fps", ".1f"), ("failed", "failures", "d")]) + [""]
-        lines += ["## Ratio jaxvo / peer (median time; < 1 = jaxvo faster)", ""]
+                                         ("mean ms", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
+                                         ("p90 ms", "p90_ms", ".1f"), ("FPS", "fps", ".1f"),
+                                         ("failed", "failures", "d")]) + [""]
+        lines += ["## Ratio jaxvo / peer (mean time; < 1 = jaxvo faster)", ""]
         lines += common.md_table(ratio_rows, [("method", "method", ""), ("pairs", "set", ""),
-                                              ("jaxvo ms", "median_ms", ".1f")]
+                                              ("jaxvo mean ms", "mean_ms", ".1f")]
                                  + [(p, p, ".2f") for p in peer_cols]) + [""]
         lines += _targets(mrows, prows)
     if drows:
-        lines += ["## The default odometry: `Odometry` / `track` with `TrackConfig()`", "",
-                  f"The first {args.default_frames} consecutive frames of each sequence, decoded into memory; "
-                  "per-frame wall time of `Odometry.add` (the estimate against the keyframe, the pose chained "
-                  "on the host, the segmentation's updates) after a warm-up pass over the same frames. "
-                  "`first s`: the warm-up's first two frames (compilation of what the sections above did not "
-                  "compile yet, e.g. the segmentation). `map update` / "
-                  "`new reference map`: time in the segmentation's jitted updates per frame (blocked "
-                  "on; the new reference map includes the first references' later motion test); `switches`: "
-                  "reference changes. Ratio: against the OpenCV rgb median of the same set's "
-                  "pairs above.", ""]
-        lines += common.md_table(drows, [("odometry", "method", ""), ("frames", "set", ""),
-                                         ("median ms/frame", "median_ms", ".1f"), ("p90 ms", "p90_ms", ".1f"),
-                                         ("/ opencv-rgb", "ratio_opencv", ".2f"), ("first s", "first_s", ".1f"),
-                                         ("map update ms", "map_update_ms", ".2f"),
-                                         ("new reference map ms", "new_ref_ms", ".2f"),
-                                         ("switches", "switches", "d")]) + [""]
+        lines += ["## The default odometry over whole sequences, against OpenCV", "",
+                  "Every frame of each sequence (frames decoded into memory first): per-frame wall time of "
+                  "`Odometry.add` (every estimate the frame takes, the segmentation's updates, the window, the "
+                  "host's policy and bookkeeping), after a warm-up pass over the same frames compiled "
+                  f"everything; {args.repeats} timed passes, each followed by a pass of OpenCV's RGB odometry "
+                  "over the same consecutive pairs (conversion and frame preparation included), so that a "
+                  "passing load weighs on both. `compile s`: the warm-up pass minus a timed pass (in this "
+                  "process, after the sections above compiled the estimator). `held`: frames whose estimate "
+                  "failed; `references`: distinct reference frames.", ""]
+        lines += common.md_table(drows, [("odometry", "method", ""), ("set", "set", ""), ("frames", "frames", "d"),
+                                         ("mean ms/frame", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
+                                         ("p90 ms", "p90_ms", ".1f"), ("OpenCV mean ms", "opencv_mean_ms", ".1f"),
+                                         ("OpenCV median ms", "opencv_median_ms", ".1f"),
+                                         ("ratio mean", "ratio_mean", ".2f"), ("ratio median", "ratio_median", ".2f"),
+                                         ("compile s", "compile_s", ".1f"), ("held", "held", "d"),
+                                         ("references", "switches", "d")]) + [""]
+        lines += _default_targets(drows)
+        lines += ["### Where the default's time goes", "",
+                  "One more pass with every estimate and every segmentation call blocked on and timed "
+                  "(`Odometry.timings`; the segmentation's public calls wrapped): ms per frame by part "
+                  "(`estimate: track` against the reference, `retry`, `recover` against an older keyframe, "
+                  "`window` a new keyframe against the window's others, `fuse` a new reference against the old "
+                  "one; `map: ...` the segmentation: each frame's inputs, the reference's static weights, "
+                  "reading an estimate's statistics, a valid estimate's vote, a new reference's map; the "
+                  "window's pose-graph refinement). `host`: the rest of `Odometry.add` (policy, poses, keys, "
+                  "transfers). Share: of the profiled pass.", ""]
+        lines += common.md_table(dparts, [("odometry", "method", ""), ("set", "set", ""), ("part", "part", ""),
+                                          ("calls / frame", "calls_per_frame", ".2f"),
+                                          ("ms / call", "ms_per_call", ".2f"), ("ms / frame", "ms_per_frame", ".2f"),
+                                          ("share", "share", ".2f")]) + [""]
     if srows:
         lines += ["## Where the time goes: per level and per stage", "",
                   "Each stage of `estimate_motion(Config(method=m))` run as its own jitted call on the same "
@@ -665,7 +745,7 @@ def main(argv=None) -> Path:
               f"{rss_start:.0f} MiB). Total wall time {time.perf_counter() - t_start:.0f} s.", ""]
     data = {"command": common.command_line(__file__, argv), "machine": common.machine_info(),
             "methods": mrows, "levels": lrows, "peers": prows, "ratios": ratio_rows, "stages": srows,
-            "default": drows, "batch": brows,
+            "default": drows, "default_parts": dparts, "batch": brows,
             "track_memory": trows, "peak_rss_mb": common.peak_rss_mb()}
     out = common.write_outputs(args.out, lines, data)
     common.log(f"[speed] wrote {out}")
@@ -673,19 +753,22 @@ def main(argv=None) -> Path:
 
 
 def _targets(mrows, prows):
-    """The issue's targets: ransac <= 1x OpenCV rgb, classic and huber <= 0.6x, on this machine."""
-    ref = {p["set"]: p["median_ms"] for p in prows if p["method"] == "opencv-rgb"}
+    """The targets per pair: ransac <= 0.5x OpenCV rgb, classic and huber <= 0.3x, mean over the
+    same pairs (the median beside it), on this machine."""
+    ref = {p["set"]: p for p in prows if p["method"] == "opencv-rgb"}
     if not ref:
         return []
-    out = ["Targets (per-pair median vs OpenCV rgb on the same pairs): ransac <= 1x, classic and huber <= 0.6x.", ""]
+    out = ["Targets (per-pair mean vs OpenCV rgb on the same pairs): ransac <= 0.5x, classic and huber <= 0.3x.", ""]
     for m in mrows:
         if m["set"] not in ref:
             continue
-        lim = 1.0 if m["method"] == "ransac" else 0.6
-        ratio = m["median_ms"] / ref[m["set"]]
+        lim = 0.5 if m["method"] == "ransac" else 0.3
+        ratio = m["mean_ms"] / ref[m["set"]]["mean_ms"]
         verdict = "met" if ratio <= lim else f"NOT met ({ratio / lim:.2f}x the limit)"
-        out.append(f"- {m['method']} ({m['set']}): {ratio:.2f}x OpenCV rgb -> {verdict}")
+        out.append(f"- {m['method']} ({m['set']}): {ratio:.2f}x OpenCV rgb mean "
+                   f"({m['median_ms'] / ref[m['set']]['median_ms']:.2f}x median) -> {verdict}")
     return out + [""]
+
 
 if __name__ == "__main__":
     main()

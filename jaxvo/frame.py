@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxvo.validation import check_values, choice, number
 
-__all__ = ["Frame", "make_frame", "luminance", "validate_pair", "check_frame", "suggest_depth_scale",
+__all__ = ["Frame", "make_frame", "luminance", "validate_pair", "validate_frame", "check_frame", "suggest_depth_scale",
            "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
 #: where a median valid depth (metres) is taken as plausible for an RGB-D camera
@@ -178,30 +178,49 @@ def validate_pair(ref: Frame, cur: Frame, camera) -> None:
     arrays inside a user's jit skip the value checks.
     """
     for name, f in (("reference", ref), ("current", cur)):
-        check_frame(f, f"{name} frame")
-        i, d = f.intensity, f.depth
-        if getattr(i, "ndim", None) != 2 or getattr(d, "ndim", None) != 2:
-            raise ValueError(f"{name} frame: intensity and depth must be 2-D (H, W), got shapes "
-                             f"{getattr(i, 'shape', None)} and {getattr(d, 'shape', None)}")
-        if tuple(i.shape) != tuple(d.shape):
-            raise ValueError(f"{name} frame: intensity {tuple(i.shape)} and depth {tuple(d.shape)} differ in size")
-        for arr, what in ((i, "intensity"), (d, "depth")):
-            if not np.issubdtype(np.dtype(arr.dtype), np.floating):
-                raise ValueError(f"{name} frame: {what} must be floating point (got {arr.dtype}); "
-                                 f"build frames with jaxvo.make_frame")
+        _check_images(f, f"{name} frame")
     if tuple(ref.intensity.shape) != tuple(cur.intensity.shape):
         raise ValueError(f"frames differ in size: reference {tuple(ref.intensity.shape)}, "
                          f"current {tuple(cur.intensity.shape)}")
-    h, w = ref.intensity.shape
+    _check_camera(ref, camera)
+    for name, f in (("reference", ref), ("current", cur)):
+        _check_depth(f, f"{name} frame")
+
+
+def validate_frame(frame: Frame, camera, what: str = "frame") -> None:
+    """:func:`validate_pair`'s checks of one frame against a camera; ValueError naming ``what``."""
+    _check_images(frame, what)
+    _check_camera(frame, camera)
+    _check_depth(frame, what)
+
+
+def _check_images(f, what: str) -> None:
+    check_frame(f, what)
+    i, d = f.intensity, f.depth
+    if getattr(i, "ndim", None) != 2 or getattr(d, "ndim", None) != 2:
+        raise ValueError(f"{what}: intensity and depth must be 2-D (H, W), got shapes "
+                         f"{getattr(i, 'shape', None)} and {getattr(d, 'shape', None)}")
+    if tuple(i.shape) != tuple(d.shape):
+        raise ValueError(f"{what}: intensity {tuple(i.shape)} and depth {tuple(d.shape)} differ in size")
+    for arr, field in ((i, "intensity"), (d, "depth")):
+        if not np.issubdtype(np.dtype(arr.dtype), np.floating):
+            raise ValueError(f"{what}: {field} must be floating point (got {arr.dtype}); "
+                             f"build frames with jaxvo.make_frame")
+
+
+def _check_camera(f, camera) -> None:
+    h, w = f.intensity.shape
     if (camera.width, camera.height) != (w, h):
         raise ValueError(f"camera intrinsics are for {camera.width}x{camera.height} but the images are {w}x{h}")
-    for name, f in (("reference", ref), ("current", cur)):
-        try:
-            d = np.asarray(f.depth)
-        except Exception:  # a tracer: cannot check values
-            continue
-        if not _has_valid_depth(d):
-            raise ValueError(f"{name} frame: depth has no valid pixel (all zero, negative or NaN)")
+
+
+def _check_depth(f, what: str) -> None:
+    try:
+        d = np.asarray(f.depth)
+    except Exception:  # a tracer: cannot check values
+        return
+    if not _has_valid_depth(d):
+        raise ValueError(f"{what}: depth has no valid pixel (all zero, negative or NaN)")
 
 
 def _has_valid_depth(d: np.ndarray) -> bool:

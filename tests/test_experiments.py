@@ -111,7 +111,7 @@ def test_table1_goes_on_past_a_sequence_it_cannot_augment(tmp_path, cache, monke
 def test_speed_quick(tmp_path):
     _require(STATIC, DYNAMIC)
     out = tmp_path / "speed.md"
-    _script("speed").main(["--quick", "--methods", "classic", "--batch", "1", "--default-frames", "0", "--out", str(out)])
+    _script("speed").main(["--quick", "--methods", "classic", "--batch", "1", "--default-frames", "-1", "--out", str(out)])
     text = out.read_text()
     assert "python experiments/speed.py" in text and "CPUs" in text
     data = json.loads(out.with_suffix(".json").read_text())

@@ -10,11 +10,11 @@ checked arguments) and :mod:`~jaxvo.estimator.motion` (:func:`estimate_motion`, 
 """
 from jaxvo.estimator.inputs import EstimateArgs, as_float32, checked_config, checked_key, estimate_args
 from jaxvo.estimator.levels import estimate_arrays, estimate_arrays_jit, trace_count
-from jaxvo.estimator.motion import estimate_motion
+from jaxvo.estimator.motion import PreparedFrame, estimate_motion, prepare_frame
 from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import least_squares
 from jaxvo.estimator.trust import TrustStats, explain_validity, pixel_counts
 
-__all__ = ["EstimateArgs", "MotionEstimate", "TrustStats", "as_float32", "checked_config", "checked_key",
+__all__ = ["EstimateArgs", "MotionEstimate", "PreparedFrame", "TrustStats", "as_float32", "checked_config", "checked_key",
            "estimate_args", "estimate_arrays", "estimate_arrays_jit", "estimate_motion", "explain_validity",
-           "least_squares", "pixel_counts", "trace_count"]
+           "least_squares", "pixel_counts", "prepare_frame", "trace_count"]

@@ -21,7 +21,7 @@ from jaxvo.camera import Camera
 from jaxvo.config import Config
 from jaxvo.estimator import brightness
 from jaxvo.estimator.inputs import num_levels
-from jaxvo.estimator.pyramid import build_pyramid, level_slice, stack_padded
+from jaxvo.estimator.pyramid import build_pyramid, level_slice, stack_padded, weight_pyramid
 from jaxvo.estimator.ransac import inliers, ransac_level, sampling_table
 from jaxvo.estimator.residuals import RefPoints, reference_points, residuals, select_points
 from jaxvo.estimator.result import MotionEstimate
@@ -220,6 +220,31 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     with jax.named_scope("pyramid"):
         ref_pyr = build_pyramid(ref_int, ref_depth, L, config.max_depth, ref_weight)
         cur_pyr = build_pyramid(cur_int, cur_depth, L, config.max_depth)
+    return _coarse_to_fine(ref_pyr, cur_pyr, camera, config, key, T_init)
+
+
+def _frame_pyramid(intensity, depth, num_levels: int, max_depth):
+    """A frame's pyramid without weights (``Level.weight`` None): what every estimate it takes
+    part in reads of it, as :func:`_estimate` builds it."""
+    return tuple(level._replace(weight=None) for level in build_pyramid(intensity, depth, num_levels, max_depth))
+
+
+def _estimate_pyramids(ref_pyr, cur_pyr, camera: Camera, config: Config, key, T_init, ref_weight):
+    """:func:`_estimate` from the frames' pyramids (:func:`_frame_pyramid`), the reference's
+    weights ``ref_weight`` (H, W) added to its levels as :func:`build_pyramid` adds them. Traced once
+    per image shape and static config (:func:`trace_count`)."""
+    _TRACES["count"] += 1
+    with jax.named_scope("pyramid"):
+        weights = weight_pyramid(ref_weight, len(ref_pyr))
+        ref_pyr = tuple(level._replace(weight=wt) for level, wt in zip(ref_pyr, weights))
+    return _coarse_to_fine(ref_pyr, cur_pyr, camera, config, key, T_init)
+
+
+def _coarse_to_fine(ref_pyr, cur_pyr, camera: Camera, config: Config, key, T_init):
+    """The estimate from the two frames' pyramids (the reference's with its weights), level by
+    level from the coarsest, to the :class:`MotionEstimate`."""
+    h, w = ref_pyr[0].depth.shape
+    L = len(ref_pyr)
     dw = config.depth_weight if config.terms == "rgbd" else None
     hyps = jnp.zeros(L, jnp.int32)
     iters = jnp.zeros(L, jnp.int32)

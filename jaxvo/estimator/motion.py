@@ -13,33 +13,91 @@ Methods (``Config.method``):
 * ``"huber"``: IRLS with Huber weights (k = 1.345 sigma, sigma by MAD each round);
 * ``"ransac"``: the paper's RANSAC per pyramid level, then least squares on the consensus set.
 
-The whole estimate is one jit-compiled function per (image shape, static
-config); numeric config fields are traced, so ``jax.vmap`` over a field of
-``Config`` is a hyperparameter sweep compiled once.
+The estimate is two jit-compiled programs per (image shape, static config): each frame's
+pyramid (:func:`prepare_frame`, kept by a caller whose frames take part in several estimates)
+and the coarse-to-fine estimate from the two pyramids. Numeric config fields are traced, so
+``jax.vmap`` over a field of ``Config`` is a hyperparameter sweep compiled once (inside a
+caller's ``vmap`` or ``jit`` the estimate is one program, pyramids included).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import NamedTuple, Optional, Tuple, Union
+
+import jax
+import numpy as np
 
 from jaxvo.camera import Camera
 from jaxvo.config import Config
-from jaxvo.estimator.inputs import estimate_args
-from jaxvo.estimator.levels import _estimate, _estimate_call
+from jaxvo.estimator.inputs import as_float32, checked_config, estimate_args, num_levels
+from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids, _frame_pyramid
+from jaxvo.estimator.pyramid import Level
 from jaxvo.estimator.result import MotionEstimate
-from jaxvo.estimator.solvers import COMPILER_OPTIONS
-from jaxvo.frame import Frame
+from jaxvo.estimator.solvers import COMPILER_OPTIONS, jit
+from jaxvo.frame import Frame, validate_frame
 from jaxvo.runtime import aot
 
-__all__ = ["MotionEstimate", "estimate_motion"]
+__all__ = ["MotionEstimate", "PreparedFrame", "estimate_motion", "prepare_frame"]
 
 
-def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Config] = None, key=None,
+class PreparedFrame(NamedTuple):
+    """A frame made ready for estimates (:func:`prepare_frame`): its pyramid is built once, and
+    every estimate it takes part in, as reference or as current frame, reads it.
+
+    frame: the :class:`Frame`. levels: its pyramid (:class:`jaxvo.estimator.pyramid.Level` per
+    level, index 0 = full resolution, float32 device arrays; ``weight`` None: the weights are an
+    estimate's own). max_depth: metres, the ``Config.max_depth`` it was built with.
+    """
+    frame: Frame
+    levels: Tuple[Level, ...]
+    max_depth: float
+
+
+_frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
+_estimate_pyramids_jit = jit(_estimate_pyramids)
+_estimate_pyramids_nested = jax.jit(_estimate_pyramids)
+
+
+def _estimate_pyramids_call(*args):
+    """``_estimate_pyramids_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested
+    jit with compiler options) the plain jit, which then runs with the caller's program's options."""
+    try:
+        return _estimate_pyramids_jit(*args)
+    except ValueError as e:
+        if "compiler_options" not in str(e):
+            raise
+        return _estimate_pyramids_nested(*args)
+
+
+def _pyramid(intensity, depth, config: Config) -> Tuple[Level, ...]:
+    """The pyramid of checked float32 (H, W) images for ``config`` (:func:`_frame_pyramid`)."""
+    h, w = intensity.shape
+    return _frame_pyramid_jit(intensity, depth, num_levels(config, w, h), np.float32(config.max_depth))
+
+
+def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None, what: str = "frame") -> PreparedFrame:
+    """``frame`` made ready for :func:`estimate_motion` with ``camera`` and ``config`` (default
+    ``Config()``): its pyramid built once (one compiled program, dispatched without waiting).
+
+    A frame that takes part in several estimates (the odometry's current frame becomes the next
+    reference; retries and keyframe windows estimate it again) then skips rebuilding its pyramid
+    in each: ``estimate_motion(prepare_frame(a, ...), prepare_frame(b, ...), ...)`` gives bitwise the
+    estimate of ``estimate_motion(a, b, ...)``, which prepares both frames itself. ValueError as :func:`estimate_motion` for a bad frame,
+    naming it ``what``.
+    """
+    config = checked_config(config, camera)
+    validate_frame(frame, camera, what)
+    return PreparedFrame(frame, _pyramid(as_float32(frame.intensity), as_float32(frame.depth), config),
+                         float(config.max_depth))
+
+
+def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, PreparedFrame], camera: Camera, config: Optional[Config] = None, key=None,
                     init=None, weights=None) -> MotionEstimate:
     """Estimate the rigid motion between two RGB-D frames.
 
     Args:
       ref: reference (earlier) Frame: intensity (H, W) float32 0-255, depth (H, W) float32 metres, 0 = invalid.
-      cur: current (later) Frame, same size.
+      cur: current (later) Frame, same size. Either may be a :class:`PreparedFrame`
+        (:func:`prepare_frame`): its pyramid is then not built again.
       camera: intrinsics for (H, W) images.
       config: :class:`Config` (default: RANSAC with jaxvo's defaults; ``Config.paper()`` is the
         published algorithm).
@@ -58,8 +116,25 @@ def estimate_motion(ref: Frame, cur: Frame, camera: Camera, config: Optional[Con
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
         images, no valid depth, or an invalid config.
     """
-    args = estimate_args(ref, cur, camera, config, key, init, weights)
+    frames = [x.frame if isinstance(x, PreparedFrame) else x for x in (ref, cur)]
+    args = estimate_args(frames[0], frames[1], camera, config, key, init, weights)   # every check
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args)):
+        # inside a caller's jax.vmap / jax.jit (e.g. a sweep over a Config field): one program
+        # with both pyramids, as the caller traces it anyway
+        return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))
+    config = args.config
+    h, w = frames[0].intensity.shape
+    for name, p in (("reference", ref), ("current", cur)):
+        if isinstance(p, PreparedFrame) and (len(p.levels) != num_levels(config, w, h)
+                                             or p.max_depth != float(config.max_depth)):
+            raise ValueError(f"{name} frame was prepared for another config ({len(p.levels)} levels, max_depth "
+                             f"{p.max_depth}); prepare it with this one (jaxvo.estimator.prepare_frame)")
+    # the frames' pyramids, then the estimate from them: the program an odometry's prepared frames
+    # run too (one compilation serves both)
+    ref_levels = ref.levels if isinstance(ref, PreparedFrame) else _pyramid(args.ref_intensity, args.ref_depth, config)
+    cur_levels = cur.levels if isinstance(cur, PreparedFrame) else _pyramid(args.cur_intensity, args.cur_depth, config)
+    leaves = (ref_levels, cur_levels, camera, config, args.key, args.T_init, args.ref_weight)
     # through the program exported into the cache folder when the cache is on (jaxvo.runtime.cache,
     # by default): a second process then skips tracing; else plain jit (the arguments as a
     # plain tuple: the pytree, and so the exported program's name, as the estimate's signature)
-    return MotionEstimate(*aot.call("estimate", _estimate, _estimate_call, tuple(args), COMPILER_OPTIONS))
+    return MotionEstimate(*aot.call("estimate", _estimate_pyramids, _estimate_pyramids_call, leaves, COMPILER_OPTIONS))

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple, Optional, Sequence, Tuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["Level", "level_size", "flat_offset", "level_slice", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid",
+__all__ = ["Level", "level_size", "flat_offset", "level_slice", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid", "weight_pyramid",
            "num_levels_for"]
 
 
@@ -149,14 +149,23 @@ def build_pyramid(intensity, depth, num_levels: int, max_depth=4.0, weight=None)
     """
     i = jnp.asarray(intensity, jnp.float32)
     d = sanitize_depth(depth, max_depth)
-    wt = jnp.ones_like(i) if weight is None else jnp.clip(jnp.asarray(weight, jnp.float32), 0.0, 1.0)
+    weights = weight_pyramid(jnp.ones_like(i) if weight is None else weight, num_levels)
     levels = []
     for l in range(num_levels):
         if l > 0:
             i, d = downsample(i, d)
-            wt = block_mean(wt)
         gu, gv = gradients(i)
-        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d), wt))
+        levels.append(Level(i, d, jnp.stack([i, gu, gv], -1), depth_gradients(d), weights[l]))
+    return tuple(levels)
+
+
+def weight_pyramid(weight, num_levels: int) -> Tuple[jnp.ndarray, ...]:
+    """(H, W) trust in [0, 1] (clipped to it) -> its ``num_levels`` levels, 2x2 block means (the
+    ``weight`` of :func:`build_pyramid`'s levels)."""
+    wt = jnp.clip(jnp.asarray(weight, jnp.float32), 0.0, 1.0)
+    levels = [wt]
+    for _ in range(1, num_levels):
+        levels.append(block_mean(levels[-1]))
     return tuple(levels)
 
 

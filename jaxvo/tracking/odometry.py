@@ -1,6 +1,7 @@
 """Streaming odometry: :class:`Odometry` (frames in, poses out) and :func:`track`, a loop over it."""
 from __future__ import annotations
 
+import time
 from typing import Iterable, NamedTuple, Optional
 
 import jax
@@ -11,7 +12,7 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame
-from jaxvo.estimator import MotionEstimate, checked_config, checked_key, estimate_motion
+from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, prepare_frame
 from jaxvo.tracking import segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
@@ -131,6 +132,7 @@ class Odometry:
         self.inlier_ratio: list = []
         self.references: list = []
         self._frames: dict = {}         # index -> Frame that may still serve as reference
+        self._pyramids: dict = {}       # index -> its PreparedFrame, while the frame is held
         self._ref = 0
         self._anchor: dict = {}         # reference index -> the pose later frames chain from
         self._rel: dict = {}            # frame index -> its valid estimate T_cur_ref (float64)
@@ -140,6 +142,13 @@ class Odometry:
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
         self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
+        #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
+        #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
+        #: (track: against the reference; retry; recover: against an older keyframe; window: a new
+        #: keyframe against the window's; fuse: a new reference against the old one), the window's
+        #: refinement under ``"window refinement"``, each frame's pyramid under ``"frame pyramid"``.
+        #: Poses are the same with or without it.
+        self.timings: Optional[dict] = None
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -154,8 +163,8 @@ class Odometry:
         pair = self.prepare(frame)
         if pair is None:
             return TrackStep(0, -1, None, self._first, True, None)
-        return self.finish(pair, estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
-                                                 init=pair.init, weights=pair.weights))
+        j = len(self.poses)
+        return self.finish(pair, self._estimate("track", self._ref, j, pair.key, pair.init, pair.weights))
 
     def prepare(self, frame: Frame) -> Optional["PairInputs"]:
         """The first half of :meth:`add`: record the frame and return the inputs of its estimate
@@ -164,7 +173,13 @@ class Odometry:
         check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
         self._frames[j] = frame
-        self.static_map.add(j, frame)
+        # its pyramid, which every estimate it takes part in reads, and which holds the segmentation's inputs
+        start = time.perf_counter()
+        self._pyramids[j] = prepare_frame(frame, self.camera, self.config, f"frame {j}")
+        if self.timings is not None:
+            jax.block_until_ready(self._pyramids[j].levels)
+            self.timings.setdefault("frame pyramid", []).append(time.perf_counter() - start)
+        self.static_map.add(j, frame, self._pyramids[j].levels)
         if j == 0:
             self.poses.append(self._first)
             if self.policy.window > 1:
@@ -232,8 +247,8 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
             trust, calm = self._key_trust[k]
-            again = estimate_motion(self._frames[k], pair.cur, self.camera, self.config, key,
-                                    init=geometry.inverse(T_k_prev), weights=None if calm else trust)
+            again = self._estimate("recover", k, j, key, geometry.inverse(T_k_prev),
+                                   None if calm else trust)
             judged_again = self._judge(again, T_k_prev, trust, extra)
             if judged_again.valid:
                 return k, again, judged_again
@@ -248,8 +263,7 @@ class Odometry:
         if j < 3 or not (self.valid[-1] and self.valid[-2]):
             return est, judged
         guess = pair.T_ref_prev @ geometry.inverse(self.poses[j - 2]) @ self.poses[j - 1]   # T_ref_guess
-        again = estimate_motion(pair.ref, pair.cur, self.camera, self.config, pair.key,
-                                init=geometry.inverse(guess), weights=pair.weights)
+        again = self._estimate("retry", self._ref, j, pair.key, geometry.inverse(guess), pair.weights)
         judged_again = self._judge(again, pair.T_ref_prev, pair.trust, extra)
         return (again, judged_again) if judged_again.valid else (est, judged)
 
@@ -276,12 +290,31 @@ class Odometry:
             failed += 1
         return failed
 
-    def _estimate_against(self, ref: int, frame: Frame, key, T_ref_prev: np.ndarray, weights, trust=None):
-        """Estimate ``frame`` against reference ``ref`` from the initial guess ``T_ref_prev``
-        (float64 T_ref_guess) with ``weights``. Returns (estimate, :meth:`_judge` of it with the
-        reference's static weights ``trust``, default ``weights``)."""
-        est = estimate_motion(self._frames[ref], frame, self.camera, self.config, key,
-                              init=geometry.inverse(T_ref_prev), weights=weights)
+    def _prepared(self, i: int) -> PreparedFrame:
+        """Frame i made ready for estimates (its pyramid, made by :meth:`prepare`)."""
+        return self._pyramids[i]
+
+    def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
+        """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
+        and config, from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
+        estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
+        time appended under ``purpose`` (see :attr:`timings`)."""
+        if self.timings is None:
+            return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config, key, init=init,
+                                   weights=weights)
+        start = time.perf_counter()
+        est = jax.block_until_ready(estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config,
+                                                    key, init=init, weights=weights))
+        self.timings.setdefault(f"estimate: {purpose}", []).append(time.perf_counter() - start)
+        return est
+
+    def _estimate_against(self, purpose: str, ref: int, frame: int, key, T_ref_prev: np.ndarray, weights,
+                          trust=None):
+        """Estimate frame ``frame`` against reference ``ref`` (indices) from the initial guess ``T_ref_prev``
+        (float64 T_ref_guess) with ``weights`` (:meth:`_estimate` under ``purpose``). Returns
+        (estimate, :meth:`_judge` of it with the reference's static weights ``trust``, default
+        ``weights``)."""
+        est = self._estimate(purpose, ref, frame, key, geometry.inverse(T_ref_prev), weights)
         return est, self._judge(est, T_ref_prev, weights if trust is None else trust)
 
     def _stale_allowance(self):
@@ -353,7 +386,7 @@ class Odometry:
         T_world_old = self._chain_pose(old)
         weights = self.static_map.trust(tuple(self._frames[new].depth.shape))
         key = jax.random.fold_in(jax.random.fold_in(self.key, new - 1), 1)   # apart from frame new's own key
-        _, judged = self._estimate_against(old, self._frames[new], key, geometry.inverse(T_world_old) @ pose,
+        _, judged = self._estimate_against("fuse", old, new, key, geometry.inverse(T_world_old) @ pose,
                                            weights)
         if not judged.valid:
             return pose
@@ -380,6 +413,7 @@ class Odometry:
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
         for old in [i for i in self._frames if i < self._ref and i not in self._window]:
             del self._frames[old]
+            self._pyramids.pop(old, None)
         for old in [i for i in self._info if i < self._ref - 2 * policy.max_gap]:
             del self._info[old]
         for old in [i for i in self._key_trust if i not in self._window]:
@@ -434,7 +468,7 @@ class Odometry:
             key = jax.random.fold_in(keys, n)
             T_k_new = geometry.inverse(self._chain_pose(k)) @ pose
             trust, calm = self._key_trust[k]
-            est, judged = self._estimate_against(k, self._frames[new], key, T_k_new, None if calm else trust, trust)
+            est, judged = self._estimate_against("window", k, new, key, T_k_new, None if calm else trust, trust)
             if judged.valid:
                 edges[(k, new)] = (judged.T, est.information)
         self._edges.update({e: (Z, np.asarray(info, np.float64)) for e, (Z, info) in edges.items()})
@@ -447,7 +481,10 @@ class Odometry:
         if len(nodes) < 2 or not graph_edges:
             return pose
         anchors = [self._chain_pose(k) for k in nodes[:-1]] + [pose]
-        refined = window.refine(anchors, graph_edges, policy.window)
+        start = time.perf_counter()
+        refined = window.refine(anchors, graph_edges, policy.window)   # host arrays: complete on return
+        if self.timings is not None:
+            self.timings.setdefault("window refinement", []).append(time.perf_counter() - start)
         # the frames after new start from the previous frame's pose relative to new's anchor: a
         # correction near the per-frame step limits would make their estimates look like jumps and
         # fail, so a window that disagrees that much with its chain is left as chained

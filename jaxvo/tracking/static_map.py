@@ -42,6 +42,11 @@ def _trust(L, flags, shape):
     return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags)), shape)
 
 
+@jax.jit
+def _trusted(weights):
+    return weights >= 0.5
+
+
 def _occluded(est: MotionEstimate):
     """The estimate's occluded mask, or no pixel hidden where it was made without one."""
     return jnp.zeros_like(est.valid_mask) if est.occluded_mask is None else est.occluded_mask
@@ -51,8 +56,13 @@ def _occluded(est: MotionEstimate):
 def _trust_ratios(inlier_mask, valid_mask, occluded_mask, weights):
     """(inlier ratio over the reference pixels the segmentation trusts (weight >= 0.5),
     fraction of the valid reference pixels it does not trust, fraction of them it trusts and
-    the current frame does not hide (``occluded_mask``), inlier ratio over those)."""
-    trusted = (weights >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
+    the current frame does not hide (``occluded_mask``), inlier ratio over those).
+
+    The masks lie at the estimate's finest level (``Config.finest_level``), the weights at the
+    frames' size: every f-th weight is the one of the mask's pixel (f = 2^finest_level), as the
+    weights repeat the map's pixels (f <= 2^MAP_LEVEL)."""
+    f = max(1, weights.shape[0] // inlier_mask.shape[0])
+    trusted = (weights[::f, ::f] >= 0.5)[: inlier_mask.shape[0], : inlier_mask.shape[1]]
     seen = valid_mask & trusted & ~occluded_mask
     valid, inl_trusted, valid_trusted, valid_untrusted, n_seen, inl_seen = pixel_counts(
         valid_mask, inlier_mask & trusted, valid_mask & trusted, valid_mask & ~trusted, seen, inlier_mask & seen)
@@ -223,10 +233,18 @@ class StaticMap:
         self.tested = 0
         self.compiling: Optional[threading.Thread] = None
 
-    def add(self, j: int, frame: Frame) -> None:
-        """Keep frame j's map inputs; the first frame starts an empty map and compiles the programs ahead."""
-        self.depths[j], self.cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
-                                                   self.max_depth)
+    def add(self, j: int, frame: Frame, levels=None) -> None:
+        """Keep frame j's map inputs; the first frame starts an empty map and compiles the programs ahead.
+
+        levels: the frame's pyramid (:class:`jaxvo.estimator.PreparedFrame` ``levels``, built with this
+        map's ``max_depth``), whose levels are the map's inputs (the same 2x2 means) where it
+        reaches the motion test's level; else they are computed from the frame."""
+        if levels is not None and len(levels) > segmentation.CUE_LEVEL:
+            cue = levels[segmentation.CUE_LEVEL]
+            self.depths[j], self.cues[j] = levels[segmentation.MAP_LEVEL].depth, (cue.intensity, cue.depth)
+        else:
+            self.depths[j], self.cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
+                                                       self.max_depth)
         if j == 0:
             self.L = jnp.full(self.depths[0].shape, self.params.prior, jnp.float32)
             self.flags = jnp.zeros(self.depths[0].shape, bool)
@@ -247,7 +265,7 @@ class StaticMap:
 
     def static_mask(self, weights, shape) -> np.ndarray:
         """(H, W) bool on the host: the reference pixels ``weights`` trusts as static (>= 0.5)."""
-        return np.asarray(weights)[: shape[0], : shape[1]] >= 0.5
+        return np.asarray(_trusted(weights))[: shape[0], : shape[1]]   # a quarter of the bytes to copy
 
     def update(self, est: MotionEstimate, ref: int, j: int, T: np.ndarray) -> None:
         """Add the vote of frame j's valid estimate ``est`` against reference ``ref`` (T: float64
@@ -317,7 +335,7 @@ class NoStaticMap:
     """:class:`StaticMap`'s no-op counterpart, without segmentation: no weights (every pixel
     used as it is), no static mask, nothing kept or updated."""
 
-    def add(self, j: int, frame: Frame) -> None:
+    def add(self, j: int, frame: Frame, levels=None) -> None:
         pass
 
     def trust(self, shape) -> None:

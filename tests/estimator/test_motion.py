@@ -202,6 +202,34 @@ def test_numpy_and_jax_inputs_give_the_same_estimate_and_one_program(dynamic_pai
     assert trace_count() == before
 
 
+def test_prepared_frames_give_the_frames_estimate_without_a_retrace(dynamic_pair):
+    """A frame prepared once (its pyramid) serves as reference or current frame: the estimate is
+    bitwise that of the plain frames (which estimate_motion prepares itself), with weights and an
+    initial pose, mixed with a plain frame, for every method, traced once for all of them. A
+    frame prepared for another config is refused."""
+    from jaxvo.estimator import prepare_frame
+    a, b = dynamic_pair
+    fa, fb = a.frame(), b.frame()
+    weights = np.where(a.moving_mask, 0.0, 1.0).astype(np.float32)
+    init = np.asarray(MOTION, np.float32)
+    key = jax.random.key(5)
+    for cfg in (Config(method="ransac"), Config(method="classic")):
+        pa, pb = prepare_frame(fa, CAM, cfg), prepare_frame(fb, CAM, cfg)
+        assert len(pa.levels) == 4 and pa.levels[0].igrad.shape == (480, 640, 3) and pa.levels[0].weight is None
+        ref = estimate_motion(fa, fb, CAM, cfg, key, init=init, weights=weights)
+        before = trace_count()
+        for r, c in ((pa, pb), (pa, fb), (fa, pb)):
+            e = estimate_motion(r, c, CAM, cfg, key, init=init, weights=weights)
+            for x, y in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(e)):
+                assert np.array_equal(np.asarray(x), np.asarray(y))
+        assert trace_count() == before
+    cfg = Config(method="ransac")
+    with pytest.raises(ValueError, match="prepared for another config"):
+        estimate_motion(pa, pb, CAM, cfg.replace(max_depth=3.0), key)
+    with pytest.raises(ValueError, match="prepared for another config"):
+        estimate_motion(prepare_frame(fa, CAM, Config(num_levels=3)), pb, CAM, cfg, key)
+
+
 def test_a_bad_config_is_refused_every_time(static_pair):
     """Checked (config, camera) pairs are remembered; a bad one never is, whatever came before."""
     a, b = static_pair

@@ -15,7 +15,7 @@ from jaxvo.camera import DEFAULT
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame
 from jaxvo.synthetic import make_room, render
-from jaxvo.tracking.odometry import track
+from jaxvo.tracking.odometry import Odometry, track
 
 CAM = DEFAULT
 # T_cur_ref of the pair: 1.5/-2/1 deg and 2/-1/3 cm
@@ -101,3 +101,23 @@ def test_track_config_is_validated(static_pair, policy, match):
     a, b = static_pair
     with pytest.raises(ValueError, match=match):
         track([a.frame(), b.frame()], CAM, Config(method="classic"), policy=policy)
+
+
+def test_timings_profile_the_estimates_without_changing_poses(static_pair):
+    """``Odometry.timings``: every estimate timed under its purpose, the poses bitwise those of
+    an odometry that does not time."""
+    a, b = static_pair
+    frames = [a.frame(), b.frame(), a.frame(), b.frame()]
+    plain, timed = (Odometry(CAM, Config(method="classic"), jax.random.key(0)) for _ in range(2))
+    timed.timings = {}
+    for f in frames:
+        plain.add(f)
+        timed.add(f)
+    np.testing.assert_array_equal(np.stack(plain.poses), np.stack(timed.poses))
+    assert plain.timings is None
+    estimates = {k: v for k, v in timed.timings.items() if k.startswith("estimate: ")}
+    # each frame after the first is estimated against its reference once; the window's new
+    # keyframes and the other purposes add theirs
+    assert len(estimates["estimate: track"]) == len(frames) - 1
+    assert set(estimates) <= {f"estimate: {p}" for p in ("track", "retry", "recover", "window", "fuse")}
+    assert all(t > 0 for ts in timed.timings.values() for t in ts)

@@ -1,0 +1,152 @@
+"""What a change to the default odometry would buy in time and cost in accuracy, on whole sequences.
+
+Each variant changes fields of ``Config`` (the estimator) and/or ``TrackConfig`` (the policy) from
+the default (``--variants`` JSON: name -> {"config": {...}, "policy": {...}}; the first is the
+baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
+every variant runs ``Odometry`` over the whole sequence (frames decoded into memory first, one
+warm-up pass per variant to compile); the variants and OpenCV's RGB odometry over the same pairs
+are timed in turn, pass by pass, so that other processes on the machine weigh on all alike.
+Reported per variant and sequence: mean and median ms per frame, the ratio of the mean to
+OpenCV's mean, estimates per frame, ATE and RPE over 1 s (mean and range over the seeds), held
+frames. The speed benchmark (``experiments/speed.py``) says where the default's time goes; this
+script measures what a lever found there would change.
+
+Example::
+
+    python -m experiments.diagnostics.levers --seeds 0,1,2
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from typing import List, Optional
+
+import numpy as np
+
+from experiments import common
+import jax  # noqa: E402
+
+from jaxvo.config import Config, TrackConfig  # noqa: E402
+from jaxvo.tracking.odometry import Odometry  # noqa: E402
+
+DEFAULT_VARIANTS = json.dumps({
+    "default": {},
+    "single reference": {"policy": {"window": 1}},
+    "no recovery": {"policy": {"recover": False}},
+    "finest level 1": {"config": {"finest_level": 1}},
+})
+
+
+def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sequences", nargs="*", help="TUM-layout sequence folders (default: data_root()/bonn/"
+                                                 "rgbd_bonn_crowd and data_root()/tum/rgbd_dataset_freiburg2_desk)")
+    ap.add_argument("--variants", default=DEFAULT_VARIANTS,
+                    help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}}; the '
+                         "first is the baseline (default: %(default)s)")
+    ap.add_argument("--seeds", default="0,1,2", help="comma-separated PRNG seeds (default 0,1,2)")
+    ap.add_argument("--max-frames", type=int, default=None, help="at most N frames per sequence")
+    ap.add_argument("--out", default=str(common.RESULTS / "levers" / "levers.md"), help="markdown output")
+    return ap.parse_args(argv)
+
+
+def parse_variants(text: str) -> dict:
+    """name -> (Config, TrackConfig); a misspelt field or a bad value stops with the variant's name."""
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"--variants: not JSON: {e}")
+    if not isinstance(raw, dict) or not raw:
+        raise SystemExit("--variants: expected a JSON object of name -> {\"config\": ..., \"policy\": ...}")
+    out = {}
+    for name, spec in raw.items():
+        if not isinstance(spec, dict) or set(spec) - {"config", "policy"}:
+            raise SystemExit(f"--variants: {name}: expected keys 'config' and/or 'policy'")
+        try:
+            config = Config().replace(**common.config_changes(json.dumps(spec.get("config", {}))))
+            policy = TrackConfig(**spec.get("policy", {}))
+            policy.validate()
+        except (TypeError, ValueError) as e:
+            raise SystemExit(f"--variants: {name}: {e}")
+        out[name] = (config, policy)
+    return out
+
+
+def run_pass(seq, frames, config: Config, policy: TrackConfig, key):
+    """One pass of the odometry: (per-frame seconds of frames 1.., relative motions, estimates, held)."""
+    odo = Odometry(seq.camera, config, key, policy)
+    # counts the estimates by purpose; each is blocked on, as the odometry reads each at once anyway
+    odo.timings = {}
+    secs = []
+    for f in frames:
+        t = time.perf_counter()
+        odo.add(f)
+        secs.append(time.perf_counter() - t)
+    tr = odo.result()
+    n_est = sum(len(v) for k, v in odo.timings.items() if k.startswith("estimate"))
+    return np.asarray(secs[1:]), tr.relative, n_est, int(np.sum(~tr.valid))
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    variants = parse_variants(args.variants)
+    seeds = common.int_list(args.seeds)
+    paths = args.sequences or common.default_sequences()
+    rows = []
+    for path in paths:
+        seq = common.open_sequence(path, max_frames=args.max_frames)
+        frames = common.load_frames(seq)
+        common.log(f"[levers] {seq.name}: {len(frames)} frames")
+        times = {name: [] for name in variants}
+        cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
+        results = {name: [] for name in variants}
+        for name, (config, policy) in variants.items():   # warm-up: compile each variant
+            run_pass(seq, frames[:3], config, policy, jax.random.key(seeds[0]))
+        for seed in seeds:
+            order = list(variants) if seed % 2 == 0 else list(variants)[::-1]
+            for name in order:
+                config, policy = variants[name]
+                secs, rel, n_est, held = run_pass(seq, frames, config, policy, jax.random.key(seed))
+                times[name].append(secs)
+                results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
+                common.log(f"  seed {seed} {name}: {secs.mean() * 1000:.1f} ms/frame, ATE {results[name][-1]['ate']:.4f}")
+            cv.append(common.run_method("opencv-rgb", frames, seq.camera, warmup=False)["seconds"])
+        cv_mean = float(np.mean(np.concatenate(cv))) * 1000
+        for name in variants:
+            st = common.timing_stats(np.concatenate(times[name]))
+            res = results[name]
+
+            def stat(k):
+                v = [r[k] for r in res if r[k] is not None]
+                return (float(np.mean(v)), float(np.min(v)), float(np.max(v))) if v else (None, None, None)
+            ate, rpe = stat("ate"), stat("rpe1s_t")
+            rows.append({"sequence": seq.name, "variant": name, "frames": len(frames), **st,
+                         "ratio_opencv": st["mean_ms"] / cv_mean, "opencv_mean_ms": cv_mean,
+                         "estimates": float(np.mean([r["estimates"] for r in res])),
+                         "ate": ate[0], "ate_range": _range(ate), "rpe1s": rpe[0], "rpe1s_range": _range(rpe),
+                         "held": float(np.mean([r["held"] for r in res]))})
+    lines = common.provenance_md("Levers on the default odometry: time and accuracy, whole sequences", __file__, argv)
+    lines += [f"Variants (fields changed from `Config()` / `TrackConfig()`): `{args.variants}`. Seeds "
+              f"{args.seeds}. Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
+              "after a warm-up; `/ OpenCV`: the mean against OpenCV rgb's mean over the same pairs, timed "
+              "between the passes. `estimates`: `estimate_motion` calls per frame. ATE, RPE 1 s: mean over the "
+              "seeds [range].", ""]
+    lines += common.md_table(rows, [("sequence", "sequence", ""), ("variant", "variant", ""),
+                                    ("mean ms", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
+                                    ("/ OpenCV", "ratio_opencv", ".2f"), ("estimates", "estimates", ".2f"),
+                                    ("ATE m", "ate", ".4f"), ("ATE range", "ate_range", ""),
+                                    ("RPE 1 s m/s", "rpe1s", ".4f"), ("RPE range", "rpe1s_range", ""),
+                                    ("held", "held", ".1f")]) + [""]
+    out = common.write_outputs(args.out, lines, {"command": common.command_line(__file__, argv),
+                                                 "machine": common.machine_info(), "rows": rows})
+    common.log(f"[levers] wrote {out}")
+    return out
+
+
+def _range(s) -> str:
+    return "n/a" if s[0] is None else f"{s[1]:.4f}-{s[2]:.4f}"
+
+
+if __name__ == "__main__":
+    main()
