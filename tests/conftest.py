@@ -18,3 +18,29 @@ if "JAXVO_CACHE_DIR" not in os.environ:
 from jaxvo.runtime import cache  # noqa: E402
 
 assert cache.ENV == "JAXVO_CACHE_DIR"
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def jaxvo_run(tmp_path_factory):
+    """``jaxvo_run(sequence, *options)``: ``jaxvo run SEQUENCE OPTIONS --out FILE --no-progress``
+    through click's CliRunner, run once per distinct argument list in the session and shared by the
+    tests that read it (test_bitwise.py pins trajectories that test_cli.py evaluates). Returns
+    (the click Result, the trajectory's Path); the Result's exit code is the caller's to check."""
+    from click.testing import CliRunner
+
+    from jaxvo.cli.main import main
+
+    runs = {}
+
+    def run(*args):
+        key = tuple(str(a) for a in args)
+        if key not in runs:
+            out = tmp_path_factory.mktemp("jaxvo_run") / "traj.txt"
+            result = CliRunner().invoke(main, ["run", *key, "--out", str(out), "--no-progress"],
+                                        catch_exceptions=False)
+            runs[key] = result, out
+        return runs[key]
+
+    return run

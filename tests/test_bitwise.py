@@ -2,8 +2,10 @@
 
 ``tests/fixtures/bitwise/`` holds the trajectories that ``jaxvo run`` wrote, on this project's
 CI machine, for the freiburg2_desk and Bonn crowd excerpts with the defaults, ``--method
-classic`` and ``--paper``, seeds 0-2, at the commit before the package layout was redesigned
-(see ``tests/fixtures/bitwise/README.md``). A change that only moves code must reproduce every
+classic`` and ``--paper``, seeds 0-2, each over the stretch of frames its ``# sequence:`` line
+records: the whole excerpts for the defaults and classic on freiburg2_desk and the defaults on
+Bonn, shorter stretches (people, an exposure change, failed frames) for the rest (see
+``tests/fixtures/bitwise/README.md``). A change that only moves code must reproduce every
 pose line and the settings it records byte for byte. A change that is meant to alter the
 estimates regenerates the files with the command in that README and says so in its commit.
 
@@ -16,9 +18,8 @@ import json
 from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
 
-from jaxvo.cli.main import main
+from jaxvo.data import TumSequence
 from jaxvo.data.layouts import data_root
 from jaxvo.runtime import machine
 
@@ -34,26 +35,34 @@ def _split(text: str):
     return [l for l in lines if l.startswith(COMPARED)], [l for l in lines if not l.startswith("#")]
 
 
-def _recorded_machine(text: str) -> dict:
-    line = next(l for l in text.splitlines() if l.startswith("# machine:"))
+def _recorded(text: str, field: str) -> dict:
+    """The JSON of the ``# field:`` header line (machine, sequence, ...)."""
+    line = next(l for l in text.splitlines() if l.startswith(f"# {field}:"))
     return json.loads(line.split(":", 1)[1])
+
+
+def _frame_options(seq: Path, pinned: str):
+    """--start / --max-frames of the pinned stretch (its ``# sequence:`` line), none where it is
+    the whole excerpt: the whole-excerpt runs are then the argument lists that
+    tests/cli/test_cli.py evaluates, and the session runs each once (conftest.jaxvo_run)."""
+    rec = _recorded(pinned, "sequence")
+    start, frames = rec["start"], rec["frames"]
+    return ["--start", start, "--max-frames", frames] if start or frames < len(TumSequence(seq)) else []
 
 
 @pytest.mark.parametrize("mode", list(MODES))
 @pytest.mark.parametrize("name", list(SEQUENCES))
-def test_run_reproduces_the_pinned_trajectories(tmp_path, name, mode):
+def test_run_reproduces_the_pinned_trajectories(jaxvo_run, name, mode):
     seq = data_root() / SEQUENCES[name] / name
     if not seq.is_dir():
         pytest.skip(f"{seq} is missing (set JAXVO_DATA to the folder holding tum/ and bonn/)")
     here = machine.record()
     for seed in (0, 1, 2):
         pinned = (FIXTURES / f"{name}_{mode}_s{seed}.txt").read_text()
-        rec = _recorded_machine(pinned)
+        rec = _recorded(pinned, "machine")
         if (rec["cpu"], rec["jax"], rec["jaxlib"]) != (here["cpu"], here["jax"], here["jaxlib"]):
             pytest.skip(f"pinned on {rec['cpu']} with jax {rec['jax']}; this is {here['cpu']} with jax {here['jax']}")
-        out = tmp_path / f"{mode}_s{seed}.txt"
-        result = CliRunner().invoke(main, ["run", str(seq), *MODES[mode], "--seed", str(seed), "--out", str(out)],
-                                    catch_exceptions=False)
+        result, out = jaxvo_run(seq, *MODES[mode], "--seed", seed, *_frame_options(seq, pinned))
         assert result.exit_code == 0, result.output
         got_settings, got_poses = _split(out.read_text())
         want_settings, want_poses = _split(pinned)
