@@ -252,6 +252,18 @@ def int_list(text: str) -> List[int]:
     return values
 
 
+def json_variants(text: str, expected: str) -> dict:
+    """``--variants``: a non-empty JSON object of name -> variant, else SystemExit saying that
+    ``expected`` (what each variant is) was expected."""
+    try:
+        variants = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"--variants: not JSON: {e}")
+    if not isinstance(variants, dict) or not variants:
+        raise SystemExit(f"--variants: expected a JSON object of name -> {expected}")
+    return variants
+
+
 def config_changes(text: Optional[str]) -> dict:
     """A ``--config`` option: a JSON object of ``jaxvo.Config`` fields to change (``{}`` for
     None), checked against Config's rules; ValueError naming the problem otherwise."""

@@ -53,12 +53,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 def parse_variants(text: str) -> dict:
     """name -> (Config, TrackConfig); a misspelt field or a bad value stops with the variant's name."""
-    try:
-        raw = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"--variants: not JSON: {e}")
-    if not isinstance(raw, dict) or not raw:
-        raise SystemExit("--variants: expected a JSON object of name -> {\"config\": ..., \"policy\": ...}")
+    raw = common.json_variants(text, '{"config": ..., "policy": ...}')
     out = {}
     for name, spec in raw.items():
         if not isinstance(spec, dict) or set(spec) - {"config", "policy"}:

@@ -48,12 +48,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 def parse_variants(text: str) -> dict:
     """name -> dict of Config fields, each checked as a ``--config`` (a misspelt field or a bad
     value stops with the variant's name and the problem)."""
-    try:
-        variants = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"--variants: not JSON: {e}")
-    if not isinstance(variants, dict) or not variants:
-        raise SystemExit("--variants: expected a JSON object of name -> object of Config fields")
+    variants = common.json_variants(text, "object of Config fields")
     for name, fields in variants.items():
         try:
             common.config_changes(json.dumps(fields))

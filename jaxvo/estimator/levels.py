@@ -296,7 +296,6 @@ def _coarse_to_fine(ref_pyr, cur_pyr, camera: Camera, config: Config, key, T_ini
 
 
 _estimate_jit = jit(_estimate)
-_estimate_nested = jax.jit(_estimate)
 
 # the estimator's internal API for batched and profiled estimates (jaxvo.tracking.batch, experiments):
 # the traced function (its compiled programs are named after ``_estimate``) and its jit with the
@@ -305,15 +304,23 @@ estimate_arrays = _estimate
 estimate_arrays_jit = _estimate_jit
 
 
-def _estimate_call(*args):
-    """``_estimate_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested jit with
-    compiler options) the plain jit, which then runs with the caller's program's options."""
-    try:
-        return _estimate_jit(*args)
-    except ValueError as e:
-        if "compiler_options" not in str(e):
-            raise
-        return _estimate_nested(*args)
+def jit_with_fallback(fn, with_options=None):
+    """``fn`` jitted with the estimator's compiler options (``with_options``, default
+    :func:`jaxvo.estimator.solvers.jit` of it); inside a caller's ``jax.jit`` (where JAX refuses a
+    nested jit with compiler options) the plain jit, which then runs with the caller's options."""
+    with_options, plain = (jit(fn) if with_options is None else with_options), jax.jit(fn)
+
+    def call(*args):
+        try:
+            return with_options(*args)
+        except ValueError as e:
+            if "compiler_options" not in str(e):
+                raise
+            return plain(*args)
+    return call
+
+
+_estimate_call = jit_with_fallback(_estimate, _estimate_jit)
 
 
 def _gated(ref_l, cur_l, cam, T, gate):

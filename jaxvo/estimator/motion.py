@@ -29,10 +29,10 @@ import numpy as np
 from jaxvo.camera import Camera
 from jaxvo.config import Config
 from jaxvo.estimator.inputs import as_float32, checked_config, estimate_args, num_levels
-from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids, _frame_pyramid
+from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids, _frame_pyramid, jit_with_fallback
 from jaxvo.estimator.pyramid import Level
 from jaxvo.estimator.result import MotionEstimate
-from jaxvo.estimator.solvers import COMPILER_OPTIONS, jit
+from jaxvo.estimator.solvers import COMPILER_OPTIONS
 from jaxvo.frame import Frame, validate_frame
 from jaxvo.runtime import aot
 
@@ -53,19 +53,7 @@ class PreparedFrame(NamedTuple):
 
 
 _frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
-_estimate_pyramids_jit = jit(_estimate_pyramids)
-_estimate_pyramids_nested = jax.jit(_estimate_pyramids)
-
-
-def _estimate_pyramids_call(*args):
-    """``_estimate_pyramids_jit(*args)``; inside a caller's ``jax.jit`` (where JAX refuses a nested
-    jit with compiler options) the plain jit, which then runs with the caller's program's options."""
-    try:
-        return _estimate_pyramids_jit(*args)
-    except ValueError as e:
-        if "compiler_options" not in str(e):
-            raise
-        return _estimate_pyramids_nested(*args)
+_estimate_pyramids_call = jit_with_fallback(_estimate_pyramids)
 
 
 def _pyramid(intensity, depth, config: Config) -> Tuple[Level, ...]:
