@@ -40,6 +40,12 @@ def _frames(n=N):
     return out
 
 
+def _index(frame) -> int:
+    """The frame index written into pixel (0, 0) of a frame, or of a prepared frame's frame (what
+    the odometry passes to the estimator)."""
+    return int(getattr(frame, "frame", frame).intensity[0, 0])
+
+
 @pytest.fixture
 def noisy_estimator(monkeypatch):
     """estimate_motion -> the true T_cur_ref times exp(noise), noise ~ N(0, 3 mm / 0.1 deg), fixed per pair."""
@@ -50,7 +56,7 @@ def _fake_estimator(monkeypatch, truth):
     calls = []
 
     def fake(ref, cur, camera, config, key, init=None, weights=None):
-        r, c = int(ref.intensity[0, 0]), int(cur.intensity[0, 0])
+        r, c = _index(ref), _index(cur)
         calls.append((r, c))
         rng = np.random.default_rng(1000 * r + c)
         noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
@@ -172,7 +178,7 @@ def test_a_failed_estimate_is_retried_from_the_constant_velocity_guess(monkeypat
     tried = []
 
     def fake(ref, cur, camera, config, key, init=None, weights=None):
-        r, c = int(ref.intensity[0, 0]), int(cur.intensity[0, 0])
+        r, c = _index(ref), _index(cur)
         T = geometry.inverse(truth[c]) @ truth[r]
         ok = geometry.rotation_angle((np.asarray(init, np.float64) @ geometry.inverse(T))[:3, :3]) < np.radians(2.5)
         tried.append((r, c, ok))
@@ -230,7 +236,7 @@ def test_a_failed_ransac_estimate_is_rescued_by_the_trusted_pixels_it_still_sees
 
     def fake_with(occluded):
         def fake(ref, cur, camera, config, key, init=None, weights=None):
-            r, c = int(ref.intensity[0, 0]), int(cur.intensity[0, 0])
+            r, c = _index(ref), _index(cur)
             T = geometry.inverse(truth[c]) @ truth[r]
             ones = np.ones((h, w), bool)
             return MotionEstimate(T.astype(np.float32), np.zeros(6), ~hidden, ones, 0.25, 0, 0, False, np.eye(6), 1.0,
