@@ -1,10 +1,12 @@
-"""The estimator's traced program kept on disk, so that a later process skips tracing it.
+"""jaxvo's traced programs (the estimator's, the tracking's) kept on disk, so that a later
+process skips tracing them.
 
 JAX's persistent compilation cache (:mod:`jaxvo.runtime.cache`) is keyed by the *lowered* program:
 a process that finds its compiled estimator there must still trace and lower it first
-(about 3 s at 640x480 on a small CPU, most of a second process's start-up). This module
-keeps that lowered program too, as a ``jax.export`` serialization, in the folder given to
-:func:`enable` (``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
+(about 3 s at 640x480 on a small CPU, most of a second process's start-up; the tracking's
+programs about as much again). This module keeps that lowered program too, as a
+``jax.export`` serialization, in the folder given to :func:`enable`
+(``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
 deserializes it and calls it without tracing; its XLA compilation is then a hit in JAX's
 cache. The first process traces once, exports, writes the file and runs the exported
 program (one trace, one XLA compilation, as without this module).

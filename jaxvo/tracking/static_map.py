@@ -273,6 +273,13 @@ class StaticMap:
     def read(self, est: MotionEstimate, weights) -> Reading:
         """The :class:`Reading` of ``est`` estimated with the reference's static ``weights`` (:meth:`trust`)."""
         occluded = _occluded(est)
+        masks = est.inlier_mask
+        if isinstance(weights, jax.Array) and isinstance(masks, jax.Array) \
+                and weights.sharding.device_set != masks.sharding.device_set:
+            # a batch's estimate lies on several devices (jaxvo.tracking.batch), the map's weights
+            # on the one device its exported programs commit their outputs to (jaxvo.runtime.aot):
+            # a jit refuses arguments committed to different devices
+            weights = jax.device_put(weights, masks.sharding)
         T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
             (est.T_cur_ref, est.inlier_ratio, est.valid,
              _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))

@@ -357,16 +357,20 @@ def test_odometry_compiles_once(frames320):
     frames = [r.frame() for r in rs]
     track(frames[:8], cam, Config(), jax.random.key(0))          # warm: every function compiled
     n = trace_count()
-    sizes = [f._cache_size() for f in _jitted()]
+    sizes = _compiled()
     track(frames, cam, Config(), jax.random.key(1))
     assert trace_count() == n
-    assert [f._cache_size() for f in _jitted()] == sizes
+    assert _compiled() == sizes
 
 
-def _jitted():
+def _compiled():
+    """What grows when a map program is compiled again: its jit's cache, its traces, and the
+    exported programs (jaxvo.runtime.aot) read or exported in this process."""
+    from jaxvo.runtime import aot
     from jaxvo.tracking import static_map as M
-    return [M._map_inputs, M._trust, M._trust_ratios, M._unexplained, M._update_map, M._new_reference_map,
-            M._later_motion_test]
+    programs = [M._update_map, M._new_reference_map, M._later_motion_test]
+    return ([f._cache_size() for f in [M._map_inputs, M._trust, M._trust_ratios, M._unexplained]]
+            + [(p.jitted._cache_size(), p.traces) for p in programs] + [aot.stats()])
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
