@@ -87,7 +87,7 @@ def _vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
 
 
 def _new_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params,
-                       new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
+             new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
     L = segmentation.propagate(L_old, old_md, new_md, T_old_new, camera, params)
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
     return _motion_tested(L, new_md, new_cue, cue_view, T_cue_new, cue_ok, camera, cue_camera, params)
