@@ -1,11 +1,13 @@
 """Tests of jaxvo.runtime.cache: where the persistent compilation cache lives, that a second
-`jaxvo run` or library process loads the compiled estimator from it instead of compiling again
-(also from a moved or copied folder), and that broken entries are rebuilt."""
+`jaxvo run` or library process loads the compiled estimator and tracking from it instead of
+tracing and compiling again (also from a moved or copied folder), and that broken entries are
+rebuilt."""
 from __future__ import annotations
 
 import json
 import logging
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -22,6 +24,7 @@ from jaxvo.runtime import aot
 from jaxvo.runtime import cache
 from jaxvo.config import Config
 from jaxvo.cli.main import main
+from jaxvo.tracking import static_map, window
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -51,12 +54,18 @@ def test_enable_unwritable_folder_is_refused(tmp_path):
 
 def _cmd(seq: Path, out: Path):
     return [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--method", "classic",
-            "--max-frames", "4", "--frame-to-frame", "--no-progress"]
+            "--max-frames", "4", "--no-progress"]
+
+
+# the tracking's exported programs (besides the estimator's): the map's, made ready at the first
+# frame, and the keyframe window's
+TRACKING = (static_map._update_map, static_map._new_reference_map, static_map._later_motion_test, window._refine)
 
 
 def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     """Two processes start together on an empty cache folder (both compile and write it), then a
-    third process finds every program it needs there: it adds no entry."""
+    third process finds every program it needs there: it adds no entry, and traces neither the
+    estimator nor the tracking's programs (the default tracking: segmentation and window)."""
     seq = tmp_path / "seq"
     r = CliRunner().invoke(main, ["synth", "seq1", str(seq), "--frames", "5", "--size", "160x120",
                                   "--no-progress"], catch_exceptions=False)
@@ -74,14 +83,17 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     entries = set(os.listdir(folder))
     exported = set(os.listdir(folder / "exported"))
     assert entries - {"exported"}, "the first runs wrote no compiled program into the cache folder"
-    assert len(exported) == 1 and not any(e.endswith(".tmp") for e in exported)
+    assert sorted(e.split("-")[0] for e in exported) == sorted(["estimate"] + [p.name for p in TRACKING])
 
     # JAX logs each function it traces; the third process must trace no estimator
     third = subprocess.run(_cmd(seq, tmp_path / "t3.txt"), capture_output=True, text=True,
                            env={**env, "JAX_LOG_COMPILES": "1"}, cwd=REPO, timeout=600)
     assert third.returncode == 0, third.stderr
     assert "Finished tracing" in third.stderr  # the log is on (the small helpers are traced)
-    assert "tracing estimate" not in third.stderr and "tracing _estimate" not in third.stderr
+    traced = set(re.findall(r"Finished tracing (\S+) for", third.stderr))
+    assert traced and not traced & {"estimate_exported", "_estimate", "_estimate_pyramids",
+                                    *(f"{p.name}_exported" for p in TRACKING), *(p.fn.__name__ for p in TRACKING)}
+    assert {f"call_{p.name}" for p in TRACKING} <= traced   # (the log names what was loaded)
     assert set(os.listdir(folder)) == entries and set(os.listdir(folder / "exported")) == exported
     no_cache = subprocess.run(_cmd(seq, tmp_path / "t4.txt") + ["--no-cache"], capture_output=True, text=True,
                               env=env, cwd=REPO, timeout=600)

@@ -1,10 +1,12 @@
-"""The estimator's traced program kept on disk, so that a later process skips tracing it.
+"""jaxvo's traced programs (the estimator's, the tracking's) kept on disk, so that a later
+process skips tracing them.
 
 JAX's persistent compilation cache (:mod:`jaxvo.runtime.cache`) is keyed by the *lowered* program:
 a process that finds its compiled estimator there must still trace and lower it first
-(about 3 s at 640x480 on a small CPU, most of a second process's start-up). This module
-keeps that lowered program too, as a ``jax.export`` serialization, in the folder given to
-:func:`enable` (``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
+(about 3 s at 640x480 on a small CPU, most of a second process's start-up; the tracking's
+programs about as much again). This module keeps that lowered program too, as a
+``jax.export`` serialization, in the folder given to :func:`enable`
+(``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
 deserializes it and calls it without tracing; its XLA compilation is then a hit in JAX's
 cache. The first process traces once, exports, writes the file and runs the exported
 program (one trace, one XLA compilation, as without this module).
@@ -30,12 +32,20 @@ gives one note line (:mod:`jaxvo.runtime.notes`) saying so.
 ``jax.export`` serialization needs the ``flatbuffers`` package; without it every call takes
 the jit path. Calls whose arguments are tracers (``jax.vmap`` / ``jax.jit`` of the
 estimator) always take the jit path.
+
+:class:`Program` bundles a function with its name, jit and compiler options for :func:`call`,
+and makes it ready ahead of its first call (:meth:`Program.compile_ahead`, e.g. in a thread
+while the estimator is traced): read and compiled (a hit in JAX's cache) in a process that
+finds its file, traced, written and compiled in one that does not. An exported program's
+outputs are committed to the device (:func:`sharding`); :func:`placed` puts the state that such
+outputs replace there from the start, so that the plain jits that read it compile once.
 """
 from __future__ import annotations
 
 import hashlib
 import os
 import re
+import threading
 import uuid
 from pathlib import Path
 from typing import Callable, Dict, Optional, Tuple
@@ -45,12 +55,17 @@ import numpy as np
 
 from jaxvo.runtime.notes import note_once
 
-__all__ = ["enable", "folder", "call", "program_key", "stats", "environment_tag", "has_programs"]
+__all__ = ["Program", "call", "compile_ahead", "enable", "environment_tag", "folder", "has_programs", "placed",
+           "program_key", "sharding", "stats"]
 
 _MAGIC = b"jaxvo-exported-1\n"
 _FOLDER: Dict[str, Optional[Path]] = {"path": None}
 # per (name, tree, argument signature) in this process: the jitted exported program, or None = use jit
 _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
+# one lock per memo key: a program made ready in a thread (compile_ahead) is read or traced once,
+# and a call that needs it meanwhile waits for it
+_LOCKS: Dict[tuple, threading.Lock] = {}
+_LOCKS_LOCK = threading.Lock()
 _STATS = {"loaded": 0, "exported": 0, "fallbacks": 0}
 _SOURCE: Dict[str, str] = {}
 # JAX settings that never change a traced program (logging, caches, dumps), left out of the
@@ -127,7 +142,9 @@ def _avals(leaves) -> tuple:
 def _signature(leaves) -> tuple:
     """What fixes the abstract values of ``leaves``, cheaply (every call looks it up)."""
     # a NumPy array and a JAX array of the same shape and dtype are the same input to the program
-    return tuple(("array", x.shape, x.dtype, getattr(x, "weak_type", False)) if isinstance(x, (np.ndarray, jax.Array))
+    # (so are a NumPy scalar and a jax.ShapeDtypeStruct, compile_ahead's stand-in for them)
+    return tuple(("array", x.shape, x.dtype, getattr(x, "weak_type", False))
+                 if isinstance(x, (np.ndarray, np.generic, jax.Array, jax.ShapeDtypeStruct))
                  else (type(x), getattr(x, "shape", None), getattr(x, "dtype", None), getattr(x, "weak_type", None))
                  for x in leaves)
 
@@ -200,17 +217,36 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
             _write(path, bytes(exp.serialize()))
         except OSError:
             pass  # a read-only or full folder: this process still runs the program
+    def run(*xs):
+        return exp.call(*xs)
+    # JAX's logs name the program after this function: call_<name>, not a trace of ``fn``
+    run.__name__ = run.__qualname__ = f"call_{name}"
     # every input placed on the one device the program was exported for: without it an input that
     # is committed to the device in one call (e.g. a weight map computed from an earlier
     # estimate's outputs, which this program commits) and a host array in another compile the
     # whole program twice
-    return jax.jit(exp.call, in_shardings=sharding(), compiler_options=compiler_options)
+    return jax.jit(run, in_shardings=sharding(), compiler_options=compiler_options)
 
 
 def sharding() -> jax.sharding.Sharding:
     """Where an exported program's inputs are placed and its outputs are committed: the first
     device (a caller's program that takes those outputs compiles for this sharding)."""
     return jax.sharding.SingleDeviceSharding(jax.devices()[0])
+
+
+def _memo_program(name: str, fn: Callable, leaves, tree, compiler_options) -> Optional[Callable]:
+    """The jitted exported program for these arguments in this process (read or exported at its
+    first use), or None: the jit path."""
+    memo = (name, tree, _signature(leaves))
+    with _LOCKS_LOCK:
+        lock = _LOCKS.setdefault(memo, threading.Lock())
+    with lock:
+        if memo not in _PROGRAMS:
+            try:
+                _PROGRAMS[memo] = _program(name, fn, leaves, tree, compiler_options)
+            except Exception:  # e.g. flatbuffers missing, or a primitive jax.export refuses
+                _PROGRAMS[memo] = None
+        return _PROGRAMS[memo]
 
 
 def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_options: Optional[dict] = None) -> tuple:
@@ -224,17 +260,63 @@ def call(name: str, fn: Callable, fn_jit: Callable, args: Tuple, compiler_option
     leaves, tree = jax.tree.flatten(args)
     if _FOLDER["path"] is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
         return tuple(jax.tree.leaves(fn_jit(*args)))
-    memo = (name, tree, _signature(leaves))
-    if memo not in _PROGRAMS:
-        try:
-            _PROGRAMS[memo] = _program(name, fn, leaves, tree, compiler_options)
-        except Exception:  # e.g. flatbuffers missing, or a primitive jax.export refuses
-            _PROGRAMS[memo] = None
-    prog = _PROGRAMS[memo]
+    prog = _memo_program(name, fn, leaves, tree, compiler_options)
     if prog is not None:
         try:
             return tuple(prog(*leaves))
         except Exception:  # noqa: BLE001 - the program could not be compiled or run: use jit
-            _PROGRAMS[memo] = None
+            _PROGRAMS[(name, tree, _signature(leaves))] = None
     _STATS["fallbacks"] += 1
     return tuple(jax.tree.leaves(fn_jit(*args)))
+
+
+def compile_ahead(name: str, fn: Callable, fn_jit: Callable, args: Tuple,
+                  compiler_options: Optional[dict] = None) -> None:
+    """Make :func:`call` with these arguments ready before its first call: the exported program
+    read from the folder (or traced and written) and compiled, or ``fn_jit`` compiled where the
+    folder is off or the program cannot be exported. ``args``' arrays may be
+    ``jax.ShapeDtypeStruct``; the later call with arrays of those shapes, dtypes and weak types
+    compiles nothing. Raises what lowering or compiling raises."""
+    leaves, tree = jax.tree.flatten(args)
+    prog = None if _FOLDER["path"] is None else _memo_program(name, fn, leaves, tree, compiler_options)
+    if prog is not None:
+        prog.lower(*leaves).compile()
+    else:
+        fn_jit.lower(*args).compile()
+
+
+def placed(tree):
+    """``tree``'s arrays committed to :func:`sharding` while the folder is on (as exported
+    programs leave their outputs), unchanged while it is off. For state that an exported
+    program's outputs later replace: a plain jit that reads it then finds it in one placement
+    (committed or not) in every call, and compiles once, not once per placement."""
+    return tree if _FOLDER["path"] is None else jax.device_put(tree, sharding())
+
+
+class Program:
+    """A traced function run through its exported program (:func:`call`).
+
+    name: names its files (letters, digits, ``_``); fn: the Python function; result: makes its
+    result from :func:`call`'s flat tuple of leaves (default: the tuple; e.g. ``operator.itemgetter(0)``
+    for a function that returns one array); compiler_options: XLA options of its jit and of the
+    exported program. ``jitted`` is the plain ``jax.jit`` (the path without the folder);
+    ``traces`` counts the traces of ``fn`` in this process, by either path.
+    """
+
+    def __init__(self, name: str, fn: Callable, result: Callable = tuple, compiler_options: Optional[dict] = None):
+        self.name, self.fn, self.result, self.compiler_options = name, fn, result, compiler_options
+        self.traces = 0
+
+        def traced(*args):
+            self.traces += 1
+            return fn(*args)
+        traced.__name__ = traced.__qualname__ = fn.__name__
+        self.traced = traced
+        self.jitted = jax.jit(traced, compiler_options=compiler_options)
+
+    def __call__(self, *args):
+        return self.result(call(self.name, self.traced, self.jitted, args, self.compiler_options))
+
+    def compile_ahead(self, *args) -> None:
+        """:func:`compile_ahead` for arguments like ``args`` (arrays may be ``jax.ShapeDtypeStruct``)."""
+        compile_ahead(self.name, self.traced, self.jitted, args, self.compiler_options)

@@ -2,8 +2,9 @@
 
 Compiling the estimator takes seconds to tens of seconds per (image size, method); with the
 cache a later process on the same machine loads the compiled executables from disk instead.
-The folder also keeps the estimator's traced program (``exported/``, :mod:`jaxvo.runtime.aot`), since
-JAX's cache is keyed by the lowered program and a cache hit would still trace it first.
+The folder also keeps jaxvo's traced programs, the estimator's and the tracking's (``exported/``,
+:mod:`jaxvo.runtime.aot`), since JAX's cache is keyed by the lowered program and a cache hit would
+still trace it first.
 
 **On by default.** ``import jaxvo`` switches it on (:func:`use_default`), for the library and
 every command; where it lives, first match wins:
@@ -97,7 +98,7 @@ def enable(path: Optional[os.PathLike]) -> Optional[Path]:
 
     from jaxvo.runtime import aot
 
-    aot.enable(path / "exported")  # the traced estimator too, so that a second process skips tracing
+    aot.enable(path / "exported")  # the traced programs too, so that a second process skips tracing
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # -1: no minimum and no filesystem-dependent override by JAX

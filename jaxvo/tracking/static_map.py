@@ -7,11 +7,14 @@ way: :meth:`~StaticMap.add` each frame, :meth:`~StaticMap.trust` for an estimate
 :meth:`~StaticMap.new_reference` when the reference changes, :meth:`~StaticMap.forget` old frames.
 
 The maths is :mod:`jaxvo.tracking.segmentation`; here are the programs it is compiled into (one
-``jax.jit`` each, compiled ahead in a thread at the first frame) and the host-side bookkeeping.
+``jax.jit`` each, compiled ahead in a thread at the first frame; the three map programs through
+their exported programs, :class:`jaxvo.runtime.aot.Program`, so that a process that finds them in
+the cache folder loads them instead of tracing) and the host-side bookkeeping.
 """
 from __future__ import annotations
 
 import functools
+import operator
 import threading
 from typing import Callable, NamedTuple, Optional, Sequence
 
@@ -79,14 +82,12 @@ def _unexplained(inlier_mask, valid_mask, occluded_mask, shape):
 
 # a program of its own, not fused into _unexplained: XLA's CPU code for the fused loop is
 # slower than the two apart (docs/decisions/cpu-kernels.md)
-@jax.jit
-def _update_map(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
+def _vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params):
     return segmentation.add_current_vote(L, ref_md, cur_md, T_cur_ref, unexplained, camera, params)
 
 
-@jax.jit
-def _new_reference_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params,
-                       new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
+def _new_map(L_old, old_md, new_md, T_old_new, view_mds, T_views_new, view_ok, camera, params,
+             new_cue, cue_view, T_cue_new, cue_ok, cue_camera):
     L = segmentation.propagate(L_old, old_md, new_md, T_old_new, camera, params)
     L = segmentation.add_votes(L, new_md, view_mds, T_views_new, view_ok, camera, params)
     return _motion_tested(L, new_md, new_cue, cue_view, T_cue_new, cue_ok, camera, cue_camera, params)
@@ -101,55 +102,67 @@ def _motion_tested(L, md, ref_cue, view_cue, T_view_ref, ok, camera, cue_camera,
     return segmentation.reference_map(L, md, labels, moved & ok, params)
 
 
-@jax.jit
-def _later_motion_test(L, flags, ref_md, ref_cue, cur_cue, T_cur_ref, camera, params, cue_camera):
+def _later_test(L, flags, ref_md, ref_cue, cur_cue, T_cur_ref, camera, params, cue_camera):
     """The reference's map after the motion test against a later frame (``_CUE_AHEAD``): the
     moving regions join the evidence and, with the coherent regions they make, the flags."""
     evidence, new_flags = _motion_tested(L, ref_md, ref_cue, cur_cue, T_cur_ref, True, camera, cue_camera, params)
     return evidence, flags | new_flags
 
 
+# the map's programs, exported into the cache folder (jaxvo.runtime.aot) like the estimator:
+# L (the new log-odds); (evidence, flags); (evidence, flags)
+_update_map = aot.Program("update_map", _vote, operator.itemgetter(0))
+_new_reference_map = aot.Program("new_reference_map", _new_map)
+_later_motion_test = aot.Program("later_motion_test", _later_test)
+
+
 def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> threading.Thread:
     """Compile the segmentation's programs that the first pair runs after its estimate
-    (:func:`_trust_ratios`, :func:`_unexplained`, :func:`_update_map`, :func:`_new_reference_map`
-    with few views, and the stack of those views), in a background thread started at the first
-    frame; returns the thread.
+    (:func:`_trust_ratios`, :func:`_unexplained`, :data:`_update_map`, :data:`_new_reference_map`
+    with few views, :data:`_later_motion_test`, and the stack of those views), in a background
+    thread started at the first frame; returns the thread.
 
     In a new process the first pair is mostly the estimator's compilation: first its trace
     (Python, one core), then XLA (both cores, after a serial phase). These programs, compiled
     one after the other behind it, added about a second; compiled beside the trace they are
-    ready when it needs them. The calls later find them in JAX's caches (or, if one is not done
-    yet, compile it themselves); an error here is left for that call to raise. Not a daemon
-    thread: an interpreter that exits while XLA compiles in a daemon thread may crash.
+    ready when it needs them. The map programs are made ready through their exported programs
+    (:meth:`jaxvo.runtime.aot.Program.compile_ahead`): read from the cache folder where an
+    earlier process wrote them (no trace), else traced, written and compiled. The calls later
+    find them in JAX's caches (or, if one is not done yet, compile it themselves); an error here
+    is left for that call to raise. Not a daemon thread: an interpreter that exits while XLA
+    compiles in a daemon thread may crash.
 
     L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; cue: a frame's
     :func:`segmentation.cue_images`; shape: the frames' (H, W); camera, cue_camera: the map
     level's and the cue level's camera."""
-    def abstract(x, lead=()):
-        return jax.ShapeDtypeStruct(lead + tuple(x.shape), x.dtype)
+    # where the estimate's masks and the map's weights lie: committed to the device while the
+    # programs that make them are exported (jaxvo.runtime.aot), not otherwise; another
+    # placement is another compilation
+    placement = aot.sharding() if aot.folder() is not None else None
+
+    def abstract(x, lead=(), sharding=None):
+        return jax.ShapeDtypeStruct(lead + tuple(x.shape), x.dtype, sharding=sharding)
 
     def compile_all():
         Lz, mz = abstract(L), abstract(md)
         T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
         n = _FEW_VIEWS
-        # the estimate's masks: committed to the device where they come from an exported program
-        # (jaxvo.runtime.aot), not where they come from the jit; another sharding is another compilation
-        shardings = (None, aot.sharding())
-        weights = jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape)
+        weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape),
+                           sharding=placement)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
-        masks = [jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=s) for s in shardings]
-        todo = [(_trust_ratios, (m, m, m, weights)) for m in masks]
-        todo += [(_unexplained, (m, m, m, tuple(md.shape))) for m in masks]
-        todo += [(_update_map, (Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera, params)),
-                 (_new_reference_map, (Lz, mz, mz, T) + views + (camera, params)
-                  + ((abstract(cue[0]), abstract(cue[1])),) * 2
-                  + (T, jax.ShapeDtypeStruct((), jnp.bool_), cue_camera)),
-                 (_later_motion_test, (Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), mz,
-                                       (abstract(cue[0]), abstract(cue[1])), (abstract(cue[0]), abstract(cue[1])),
-                                       T, camera, params, cue_camera))]
-        for fn, args in todo:
+        mask = jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=placement)
+        cues = (abstract(cue[0]), abstract(cue[1]))
+        todo = [lambda: _trust_ratios.lower(mask, mask, mask, weights).compile(),
+                lambda: _unexplained.lower(mask, mask, mask, tuple(md.shape)).compile(),
+                lambda: _update_map.compile_ahead(Lz, mz, mz, T, jax.ShapeDtypeStruct(md.shape, jnp.bool_), camera,
+                                                  params),
+                lambda: _new_reference_map.compile_ahead(Lz, mz, mz, T, *views, camera, params, cues, cues, T,
+                                                         jax.ShapeDtypeStruct((), jnp.bool_), cue_camera),
+                lambda: _later_motion_test.compile_ahead(Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), mz, cues, cues,
+                                                         T, camera, params, cue_camera)]
+        for prepare in todo:
             try:
-                fn.lower(*args).compile()
+                prepare()
             except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
                 return
         # and the stack of the views' depths (StaticMap.new_reference), run once to compile it
@@ -246,8 +259,10 @@ class StaticMap:
             self.depths[j], self.cues[j] = _map_inputs(as_float32(frame.intensity), as_float32(frame.depth),
                                                        self.max_depth)
         if j == 0:
-            self.L = jnp.full(self.depths[0].shape, self.params.prior, jnp.float32)
-            self.flags = jnp.zeros(self.depths[0].shape, bool)
+            # placed where the map programs' outputs that replace them will lie (committed to the
+            # device while those programs are exported): _trust compiles once
+            self.L, self.flags = aot.placed((jnp.full(self.depths[0].shape, self.params.prior, jnp.float32),
+                                             jnp.zeros(self.depths[0].shape, bool)))
             self.compiling = _compile_map_programs(self.L, self.depths[0], self.cues[0], tuple(frame.depth.shape),
                                                    self.camera, self.cue_camera, self.params)
 
@@ -258,6 +273,13 @@ class StaticMap:
     def read(self, est: MotionEstimate, weights) -> Reading:
         """The :class:`Reading` of ``est`` estimated with the reference's static ``weights`` (:meth:`trust`)."""
         occluded = _occluded(est)
+        masks = est.inlier_mask
+        if isinstance(weights, jax.Array) and isinstance(masks, jax.Array) \
+                and weights.sharding.device_set != masks.sharding.device_set:
+            # a batch's estimate lies on several devices (jaxvo.tracking.batch), the map's weights
+            # on the one device its exported programs commit their outputs to (jaxvo.runtime.aot):
+            # a jit refuses arguments committed to different devices
+            weights = jax.device_put(weights, masks.sharding)
         T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
             (est.T_cur_ref, est.inlier_ratio, est.valid,
              _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))

@@ -24,6 +24,7 @@ import numpy as np
 
 from jaxvo import geometry
 from jaxvo.estimator import least_squares
+from jaxvo.runtime import aot
 
 __all__ = ["PoseGraph", "compile_ahead", "cost", "edge_slots", "make_graph", "refine", "residuals"]
 
@@ -119,13 +120,18 @@ def cost(graph: PoseGraph, poses=None) -> jnp.ndarray:
     return jnp.sum(jnp.square(r[: 6 * g.ref.shape[0]]))
 
 
-@jax.jit
-def _refine(graph: PoseGraph):
+def _solve(graph: PoseGraph):
+    """((K, 4, 4) refined ``T_0_i``, iterations) of the graph."""
     K = graph.poses.shape[0]
     params, iterations = least_squares(lambda p: residuals(p, graph), jnp.zeros(6 * K, jnp.float32),
                                        maxiter=10)
     ok = jnp.all(jnp.isfinite(params))
     return _moved(jnp.where(ok, params, 0.0).reshape(K, 6), graph), iterations
+
+
+# exported into the cache folder (jaxvo.runtime.aot) like the estimator: a process that finds it
+# there loads it instead of tracing
+_refine = aot.Program("window_refine", _solve)
 
 
 def refine(poses, edges, K: int) -> np.ndarray:
@@ -147,10 +153,12 @@ def refine(poses, edges, K: int) -> np.ndarray:
 
 
 def compile_ahead(K: int):
-    """Compile :func:`refine`'s program for K nodes in a background thread (started at the first
-    frame, like the segmentation's programs: ready by the first keyframe switch); returns the
-    thread. An error is left for the real call to raise. Not a daemon thread: an interpreter that
-    exits while XLA compiles in a daemon thread may crash."""
+    """Make :func:`refine`'s program for K nodes ready in a background thread (started at the
+    first frame, like the segmentation's programs: ready by the first keyframe switch): read
+    from the cache folder where an earlier process exported it, else traced, exported and
+    compiled (:meth:`jaxvo.runtime.aot.Program.compile_ahead`); returns the thread. An error is
+    left for the real call to raise. Not a daemon thread: an interpreter that exits while XLA
+    compiles in a daemon thread may crash."""
     E = K * (K - 1) // 2
 
     def f32(*shape):
@@ -161,8 +169,8 @@ def compile_ahead(K: int):
 
     def compile_it():
         try:
-            _refine.lower(PoseGraph(f32(K, 4, 4), f32(K), i32(E), i32(E), f32(E, 4, 4), f32(E, 6, 6),
-                                    f32(E))).compile()
+            _refine.compile_ahead(PoseGraph(f32(K, 4, 4), f32(K), i32(E), i32(E), f32(E, 4, 4), f32(E, 6, 6),
+                                            f32(E)))
         except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
             return
 

@@ -357,16 +357,20 @@ def test_odometry_compiles_once(frames320):
     frames = [r.frame() for r in rs]
     track(frames[:8], cam, Config(), jax.random.key(0))          # warm: every function compiled
     n = trace_count()
-    sizes = [f._cache_size() for f in _jitted()]
+    sizes = _compiled()
     track(frames, cam, Config(), jax.random.key(1))
     assert trace_count() == n
-    assert [f._cache_size() for f in _jitted()] == sizes
+    assert _compiled() == sizes
 
 
-def _jitted():
+def _compiled():
+    """What grows when a map program is compiled again: its jit's cache, its traces, and the
+    exported programs (jaxvo.runtime.aot) read or exported in this process."""
+    from jaxvo.runtime import aot
     from jaxvo.tracking import static_map as M
-    return [M._map_inputs, M._trust, M._trust_ratios, M._unexplained, M._update_map, M._new_reference_map,
-            M._later_motion_test]
+    programs = [M._update_map, M._new_reference_map, M._later_motion_test]
+    return ([f._cache_size() for f in [M._map_inputs, M._trust, M._trust_ratios, M._unexplained]]
+            + [(p.jitted._cache_size(), p.traces) for p in programs] + [aot.stats()])
 
 
 def test_odometry_segments_the_persons_and_tracks(frames320):
@@ -425,18 +429,19 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     """The segmentation's programs compiled in the background from the first frame have the
     signatures of the later calls: those calls compile nothing (a mismatch, e.g. a dtype or a
     sharding, would compile every program twice, once for nothing). Through the exported
-    estimator (jaxvo.runtime.aot, as the CLI runs it), whose outputs are committed to the device, the
-    estimator compiles once although its weights are the map's on some frames and none on others.
-    The motion tests are let run at this small size, so that the first reference's later test
-    is among the calls."""
+    programs (jaxvo.runtime.aot, as the CLI runs them: the estimator and the map programs), whose
+    outputs are committed to the device, the estimator compiles once although its weights are
+    the map's on some frames and none on others, and the map's programs are each exported once,
+    by the thread. The motion tests are let run at this small size, so that the first
+    reference's later test is among the calls."""
     from jaxvo.runtime import aot
     from jaxvo.tracking import static_map as M
     monkeypatch.setattr(M, "_CUE_MIN_WIDTH", 0)
     later = []
 
-    class Spy:   # counts the calls; the background thread still finds the program's .lower
+    class Spy:   # counts the calls (the background thread compiles the module's program)
         def __init__(self, fn):
-            self.fn, self.lower = fn, fn.lower
+            self.fn = fn
 
         def __call__(self, *args):
             later.append(1)
@@ -448,11 +453,14 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     frames = [s.render(k).frame() for k in range(len(s))]
     odo = Odometry(cam, Config(), jax.random.key(0))
     calm = []
+    programs = (M._update_map, M._new_reference_map, M._later_motion_test)
     try:
         aot.enable(tmp_path / "exported" if exported else None)
+        before = [p.traces for p in programs]
         odo.add(frames[0])
         odo.static_map.compiling.join()
-        names = ("_trust_ratios", "_unexplained", "_update_map", "_new_reference_map", "_later_motion_test")
+        traces = [p.traces for p in programs]
+        names = ("_trust_ratios", "_unexplained") + sum(((p.name, p.fn.__name__) for p in programs), ())
         with jax.log_compiles(True), caplog.at_level("DEBUG", logger="jax"):
             steps = []
             for f in frames[1:]:
@@ -460,10 +468,17 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
                 steps.append(odo.add(f))
     finally:
         aot.enable(None)
+    # the thread traced each once (jit, or export into the fresh folder); the calls none again
+    assert [a - b for a, b in zip(traces, before)] == [1, 1, 1] and [p.traces for p in programs] == traces
+    if exported:
+        files = [f.name.split("-")[0] for f in (tmp_path / "exported").iterdir()]
+        assert [files.count(p.name) for p in programs] == [1, 1, 1], files
     compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
-    estimator = [m for m in compiled if "_estimate" in m or "jit(call)" in m]
+    estimator = [m for m in compiled if "_estimate" in m]   # jit(_estimate_pyramids) or jit(call_estimate)
     assert len(estimator) == 1, estimator                                # and the log is captured
-    assert not [m for m in compiled if any(f"jit({n})" in m for n in names)]
+    assert not [m for m in compiled if any(n in m for n in names)], compiled
+    # the map's weights and its static mask: one placement of the map in every call (aot.placed)
+    assert [sum(f"jit({n})" in m for m in compiled) for n in ("_trust", "_trusted")] == [1, 1], compiled
     # nor the stack of a new reference map's few (4) views (12 views may compile later)
     md_shape = "float32[%d,%d]" % odo.static_map.L.shape
     assert not [r.getMessage() for r in caplog.records

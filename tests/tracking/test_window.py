@@ -101,11 +101,11 @@ def test_a_partial_window_is_padded_and_unconnected_nodes_stay():
 
 def test_refine_compiles_once_per_window_size():
     rng = np.random.default_rng(4)
-    before = window._refine._cache_size()
+    before = window._refine.traces
     for n in (2, 3, 4, 4):
         P = _random_poses(rng, n)
         window.refine(P, _edges(P, rng, np.full(6, 0.01)), K)
-    assert window._refine._cache_size() - before <= 1
+    assert window._refine.traces - before <= 1
 
 
 # ----------------------------------------------------------------------------- odometry
@@ -145,10 +145,10 @@ def crowd():
 def test_window_is_deterministic_and_compiles_once(crowd):
     seq, frames = crowd
     a = _run(frames[:40], TrackConfig(), seed=3)
-    cache = window._refine._cache_size()
+    traces = window._refine.traces
     b = _run(frames[:40], TrackConfig(), seed=3)
     np.testing.assert_array_equal(np.stack(a.poses), np.stack(b.poses))
-    assert window._refine._cache_size() == cache            # no retrace per window update
+    assert window._refine.traces == traces                  # no retrace per window update
 
 
 def test_window_drifts_less_than_the_single_reference(crowd):
