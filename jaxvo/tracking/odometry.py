@@ -51,6 +51,12 @@ class TrackStep(NamedTuple):
     static_mask: Optional[np.ndarray] = None
 
 
+#: Two estimates of a frame against different keyframes that its guess makes jumps agree when
+#: their poses lie within this fraction of the per-frame step limits (TrackConfig.max_step,
+#: max_step_deg) of each other (Odometry._agreeing).
+AGREEMENT = 0.25
+
+
 def _rigid(T) -> np.ndarray:
     """float64 copy of a float32 estimate with its rotation re-orthonormalised, so that
     chaining thousands of them (and inverting by transpose) stays rigid."""
@@ -68,12 +74,15 @@ class Judgement(NamedTuple):
     valid: the estimate is trusted and a plausible step from its initial guess.
     dynamic: the fraction of the reference's valid pixels the segmentation does not trust (1.0
     without one).
+    trusted: the estimate is trusted (the estimator's flag, or the rescue) and finite, whatever
+    its step from the guess.
     """
     T: np.ndarray
     ratio: float
     ratio_static: float
     valid: bool
     dynamic: float
+    trusted: bool = False
 
 
 class PairInputs(NamedTuple):
@@ -213,7 +222,7 @@ class Odometry:
         used = ref
         if not judged.valid and policy.recover and policy.window > 1:
             used, est, judged = self._recover(pair, est, judged, extra)
-        T, ratio, ratio_static, valid, dynamic = judged
+        T, ratio, ratio_static, valid, dynamic = judged.T, judged.ratio, judged.ratio_static, judged.valid, judged.dynamic
         pose = self._held(j) if not valid and policy.hold_invalid else self._chain_pose(used) @ geometry.inverse(T)
         poses.append(pose)
         self.valid.append(valid)
@@ -238,11 +247,16 @@ class Odometry:
         (``TrackConfig.recover``): the frame estimated against the window's older keyframes, newest
         first, from its guessed pose, each with the keyframe's static weights; the first that
         passes is kept. A frame that a person hides from the reference may still see what an
-        earlier keyframe saw, and its pose then needs no coasting. (ref, est, judged) as they were
-        where none passes."""
+        earlier keyframe saw, and its pose then needs no coasting.
+
+        Where none passes but two of these estimates (the reference's among them) are trusted and
+        put the frame at the same pose (:meth:`_agreeing`), the newer reference's is kept: the
+        guess, the previous frame's pose, is then what is off, and holding it would keep every
+        later frame as far from its guess. (ref, est, judged) as they were otherwise."""
         j, ref = len(self.poses), self._ref
         guess = self._chain_pose(ref) @ pair.T_ref_prev        # T_world_guess: the previous frame's pose
         keys = jax.random.fold_in(pair.key, 3)   # apart from the frame's own key (and the retry's)
+        jumps = [(ref, est, judged)] if judged.trusted else []
         for n, k in enumerate(reversed([k for k in self._window if k != ref and k in self._key_trust])):
             key = jax.random.fold_in(keys, n)
             T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
@@ -252,7 +266,38 @@ class Odometry:
             judged_again = self._judge(again, T_k_prev, trust, extra)
             if judged_again.valid:
                 return k, again, judged_again
-        return ref, est, judged
+            if judged_again.trusted:
+                jumps.append((k, again, judged_again))
+        agreed = self._agreeing(jumps, guess, extra)
+        return agreed if agreed is not None else (ref, est, judged)
+
+    def _agreeing(self, jumps, guess: np.ndarray, extra):
+        """The first of ``jumps`` (reference, estimate, judgement; trusted estimates of the current
+        frame judged too far from the guess, newest reference first) that a later one confirms,
+        with its judgement made valid; None if no two agree.
+
+        Two estimates against different keyframes agree when the poses they give the frame lie
+        within ``AGREEMENT`` of the per-frame step limits of each other, and both lie within twice
+        those limits (plus ``extra``, the stale guess's allowance) of the guess ``guess``
+        (T_world_guess). Each keyframe sees the frame through its own pixels and its own static
+        weights, so a pose that two of them give independently is not one person's motion followed
+        by chance (docs/decisions/window.md)."""
+        policy = self.policy
+        near_m, near_deg = 2 * (policy.max_step + extra[0]), 2 * (policy.max_step_deg + extra[1])
+        poses = []
+        for k, est, judged in jumps:
+            P = self._chain_pose(k) @ geometry.inverse(judged.T)          # T_world_cur
+            step = geometry.inverse(guess) @ P
+            if (np.linalg.norm(step[:3, 3]) <= near_m
+                    and geometry.rotation_angle(step[:3, :3]) <= np.radians(near_deg)):
+                poses.append((k, est, judged, P))
+        for a, (k, est, judged, P) in enumerate(poses):
+            for _, _, _, Q in poses[a + 1:]:
+                D = geometry.inverse(P) @ Q
+                if (np.linalg.norm(D[:3, 3]) <= AGREEMENT * policy.max_step
+                        and geometry.rotation_angle(D[:3, :3]) <= np.radians(AGREEMENT * policy.max_step_deg)):
+                    return k, est, judged._replace(valid=True)
+        return None
 
     def _retry(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
         """(estimate, :meth:`_judge` of it) for a frame whose estimate ``est`` failed: the pair
@@ -349,11 +394,12 @@ class Odometry:
             ok = r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
         T = _rigid(r.T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
+        trusted = valid
         if valid:
             step = T @ T_ref_prev                          # T_cur_guess
             valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step + extra[0]
                      and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg + extra[1]))
-        return Judgement(T, float(r.ratio), float(r.ratio_static), valid, float(r.dynamic))
+        return Judgement(T, float(r.ratio), float(r.ratio_static), valid, float(r.dynamic), trusted)
 
     def _smoothed(self, new: int) -> np.ndarray:
         """Pose of ``new`` from a smooth fit to all estimates against its reference.

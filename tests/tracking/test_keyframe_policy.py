@@ -258,3 +258,39 @@ def test_a_failed_ransac_estimate_is_rescued_by_the_trusted_pixels_it_still_sees
     assert not any(run(hidden, TrackConfig(rescue=0.0)).valid)
     assert not any(run(hidden, config=O.Config(method="classic")).valid)
     assert TrackConfig().rescue > 0
+
+
+def test_estimates_that_agree_outweigh_a_wrong_guess(monkeypatch):
+    """Frame 100's estimates are 4.5 cm off the truth, against the camera's motion: under the 5 cm
+    step limit, so its pose is kept. Frame 101's estimates (3 mm / 0.1 deg noise) are then 5.5 cm
+    from their guess, frame 100's pose: jumps against its reference and against the window's older
+    keyframes alike. They put frame 101 at one pose, so it is kept (``Odometry._agreeing``) and the
+    track goes on from the truth; without ``recover`` (one estimate alone) frame 101 is held."""
+    truth = _truth()
+    step = (geometry.inverse(truth[100]) @ truth[101])[:3, 3]
+    bias = geometry.exp(np.concatenate([np.zeros(3), -0.045 * step / np.linalg.norm(step)]))
+
+    def fake(ref, cur, camera, config, key, init=None, weights=None):
+        r, c = _index(ref), _index(cur)
+        rng = np.random.default_rng(1000 * r + c)
+        noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
+        T_world_cur = truth[c] @ bias if c == 100 else truth[c]
+        T = geometry.inverse(T_world_cur) @ truth[r] @ geometry.exp(noise)
+        z = np.zeros((CAM.height, CAM.width), bool)
+        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, True, np.eye(6), 1.0)
+
+    monkeypatch.setattr(O, "estimate_motion", fake)
+    policy = TrackConfig(calm_fraction=0.0)          # keyframes throughout: the reference is not frame 100
+    odo = _run(policy)
+    assert odo.valid[99] and odo.references[99] != 100     # frame 100 kept, with its error
+    assert odo.valid[100]                                   # frame 101: the agreeing estimates
+
+    def error(P, i):   # position error of frame i relative to frame 99
+        E = geometry.inverse(geometry.inverse(truth[99]) @ truth[i]) @ (geometry.inverse(P[99]) @ P[i])
+        return np.linalg.norm(E[:3, 3])
+
+    assert error(odo.poses, 100) > 0.035
+    assert error(odo.poses, 101) < 0.015, error(odo.poses, 101)
+    assert all(odo.valid[100:110])
+    held = _run(policy._replace(recover=False))
+    assert not held.valid[100]
