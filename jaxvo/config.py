@@ -266,7 +266,8 @@ class TrackConfig(NamedTuple):
     #: others, and the window's poses are refined as a pose graph. docs/decisions/window.md.
     window: Annotated[int, integer(1)] = 3
     #: With window > 1: a frame whose estimate failed is estimated against the window's older
-    #: keyframes before its pose is held. docs/decisions/window.md.
+    #: keyframes before its pose is held; two trusted estimates that agree on its pose are kept
+    #: even where its guess makes them jumps. docs/decisions/window.md.
     recover: Annotated[bool, flag()] = True
 
     @classmethod

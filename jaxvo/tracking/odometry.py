@@ -116,7 +116,8 @@ class Odometry:
     is estimated against its other keyframes, and the window's poses are refined as a pose graph
     (:mod:`jaxvo.tracking.window`), so the poses later frames chain from rest on several estimates,
     not one. A frame that fails against its reference is estimated against the window's older
-    keyframes before it is held (``TrackConfig.recover``). Poses already returned never change.
+    keyframes before it is held (``TrackConfig.recover``), and kept where two of those estimates agree
+    on its pose even if they are jumps from its guess. Poses already returned never change.
 
     Frame j (j >= 1) is estimated with key ``jax.random.fold_in(key, j - 1)``; the same key
     and frames give bitwise the same poses. Each result is pulled to the host before the
