@@ -57,6 +57,11 @@ class TrackStep(NamedTuple):
 AGREEMENT = 0.25
 
 
+def _within(T: np.ndarray, metres: float, degrees: float) -> bool:
+    """The rigid motion T (4, 4) moves at most ``metres`` and turns at most ``degrees``."""
+    return bool(np.linalg.norm(T[:3, 3]) <= metres and geometry.rotation_angle(T[:3, :3]) <= np.radians(degrees))
+
+
 def _rigid(T) -> np.ndarray:
     """float64 copy of a float32 estimate with its rotation re-orthonormalised, so that
     chaining thousands of them (and inverting by transpose) stays rigid."""
@@ -289,14 +294,11 @@ class Odometry:
         for k, est, judged in jumps:
             P = self._chain_pose(k) @ geometry.inverse(judged.T)          # T_world_cur
             step = geometry.inverse(guess) @ P
-            if (np.linalg.norm(step[:3, 3]) <= near_m
-                    and geometry.rotation_angle(step[:3, :3]) <= np.radians(near_deg)):
+            if _within(step, near_m, near_deg):
                 poses.append((k, est, judged, P))
         for a, (k, est, judged, P) in enumerate(poses):
             for _, _, _, Q in poses[a + 1:]:
-                D = geometry.inverse(P) @ Q
-                if (np.linalg.norm(D[:3, 3]) <= AGREEMENT * policy.max_step
-                        and geometry.rotation_angle(D[:3, :3]) <= np.radians(AGREEMENT * policy.max_step_deg)):
+                if _within(geometry.inverse(P) @ Q, AGREEMENT * policy.max_step, AGREEMENT * policy.max_step_deg):
                     return k, est, judged._replace(valid=True)
         return None
 
@@ -397,9 +399,7 @@ class Odometry:
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         trusted = valid
         if valid:
-            step = T @ T_ref_prev                          # T_cur_guess
-            valid = (np.linalg.norm(step[:3, 3]) <= policy.max_step + extra[0]
-                     and geometry.rotation_angle(step[:3, :3]) <= np.radians(policy.max_step_deg + extra[1]))
+            valid = _within(T @ T_ref_prev, policy.max_step + extra[0], policy.max_step_deg + extra[1])  # T_cur_guess
         return Judgement(T, float(r.ratio), float(r.ratio_static), valid, float(r.dynamic), trusted)
 
     def _smoothed(self, new: int) -> np.ndarray:
@@ -536,8 +536,7 @@ class Odometry:
         # correction near the per-frame step limits would make their estimates look like jumps and
         # fail, so a window that disagrees that much with its chain is left as chained
         moved = geometry.inverse(pose) @ refined[-1]
-        if (np.linalg.norm(moved[:3, 3]) > 0.5 * policy.max_step
-                or geometry.rotation_angle(moved[:3, :3]) > np.radians(0.5 * policy.max_step_deg)):
+        if not _within(moved, 0.5 * policy.max_step, 0.5 * policy.max_step_deg):
             return pose
         for k, P in zip(nodes[:-1], refined[:-1]):
             if k != nodes[0]:
