@@ -269,6 +269,10 @@ class TrackConfig(NamedTuple):
     #: keyframes before its pose is held; two trusted estimates that agree on its pose are kept
     #: even where its guess makes them jumps. docs/decisions/window.md.
     recover: Annotated[bool, flag()] = True
+    #: With window > 1 and RANSAC: the outlier fraction (``Config.w``, in [0, 1)) that the
+    #: estimates of a new keyframe against the window's older keyframes assume, which sets how
+    #: many hypotheses they draw; None: ``Config.w``. docs/decisions/window.md.
+    window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

@@ -50,8 +50,10 @@ class Rule:
     scalar: bool = False
 
 
-def real(lo: Bound = None, hi: Bound = None, lo_open: bool = False, hi_open: bool = False) -> Rule:
-    return Rule("real", lo, hi, lo_open, hi_open)
+def real(lo: Bound = None, hi: Bound = None, lo_open: bool = False, hi_open: bool = False,
+         none_means: str = "") -> Rule:
+    """A number or an array of numbers, None too when ``none_means`` says what it means."""
+    return Rule("real", lo, hi, lo_open, hi_open, none=bool(none_means), none_means=none_means)
 
 
 def number(lo: Bound = None, hi: Bound = None, lo_open: bool = False, none_means: str = "") -> Rule:

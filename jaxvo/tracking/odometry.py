@@ -137,6 +137,11 @@ class Odometry:
         if not isinstance(self.policy, TrackConfig):
             raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
         self.policy.validate()
+        # the estimates against the window's older keyframes: the same program (Config.w is a
+        # traced leaf; an array keeps the config's dtype, so that the program's signature is the same)
+        w, outliers = self.config.w, self.policy.window_outliers
+        self._window_config = self.config if outliers is None else self.config.replace(
+            w=float(outliers) if isinstance(w, (int, float)) else np.asarray(outliers, np.asarray(w).dtype))
         self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self.static_map = StaticMap(camera, self.config.max_depth, self.params) if self.policy.segment \
@@ -344,14 +349,16 @@ class Odometry:
 
     def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
         """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
-        and config, from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
+        and config (for ``purpose`` "window": with ``TrackConfig.window_outliers`` as ``Config.w``),
+        from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
         estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
         time appended under ``purpose`` (see :attr:`timings`)."""
+        config = self._window_config if purpose == "window" else self.config
         if self.timings is None:
-            return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config, key, init=init,
+            return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, config, key, init=init,
                                    weights=weights)
         start = time.perf_counter()
-        est = jax.block_until_ready(estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, self.config,
+        est = jax.block_until_ready(estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, config,
                                                     key, init=init, weights=weights))
         self.timings.setdefault(f"estimate: {purpose}", []).append(time.perf_counter() - start)
         return est

@@ -14,6 +14,7 @@ import scipy.linalg
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.config import TrackConfig
+from jaxvo.estimator import trace_count
 from jaxvo.evaluation import metrics
 from jaxvo.frame import make_frame
 from jaxvo.synthetic import SensorModel, make_sequence
@@ -149,6 +150,36 @@ def test_window_is_deterministic_and_compiles_once(crowd):
     b = _run(frames[:40], TrackConfig(), seed=3)
     np.testing.assert_array_equal(np.stack(a.poses), np.stack(b.poses))
     assert window._refine.traces == traces                  # no retrace per window update
+
+
+def test_window_outliers_sets_the_window_estimates_hypotheses_in_the_same_program(crowd):
+    """TrackConfig.window_outliers is the Config.w of the estimates against the window's older
+    keyframes only: None and Config().w give the same poses, a small one draws fewer hypotheses
+    there, and neither compiles the estimator again (w is a traced value)."""
+    seq, frames = crowd
+    drawn = {}
+
+    class Recording(Odometry):
+        def _estimate(self, purpose, *args):
+            est = super()._estimate(purpose, *args)
+            drawn.setdefault((self.policy.window_outliers, purpose), []).append(int(np.asarray(est.hypotheses).sum()))
+            return est
+
+    def run(policy):
+        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
+        for f in frames[:40]:
+            odo.add(f)
+        return np.stack(odo.poses)
+
+    plain = run(TrackConfig())
+    traces = trace_count()
+    np.testing.assert_array_equal(run(TrackConfig(window_outliers=0.3)), plain)
+    run(TrackConfig(window_outliers=0.01))
+    assert trace_count() == traces
+    # w = 0.01: k = ceil(log(0.01) / log(1 - 0.99^6)) = 2 per RANSAC level (w = 0.3: 37); 160x120
+    # images have 2 levels
+    assert drawn[(0.01, "window")] and max(drawn[(0.01, "window")]) <= 2 * 2
+    assert sum(drawn[(0.01, "window")]) < sum(drawn[(None, "window")])
 
 
 def test_window_drifts_less_than_the_single_reference(crowd):
