@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jaxvo.config import Config, TrackConfig
 from jaxvo.data import data_root
 
 REPO = Path(__file__).resolve().parents[1]
@@ -29,7 +30,7 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
-DIAGNOSTICS = ("exposure", "map_poses", "mask_limits", "variants")
+DIAGNOSTICS = ("exposure", "levers", "map_poses", "mask_limits", "variants")
 
 
 def _script(name):
@@ -292,6 +293,19 @@ def test_variants_quick(tmp_path):
     assert "| classic | coarser | dynamic |" in out.read_text()
     with pytest.raises(SystemExit, match="coarse: .*did you mean 'finest_level'"):
         _script("variants").main(["--quick", "--variants", '{"coarse": {"finest_levl": 3}}'])
+
+
+def test_levers_variants_take_json_lists_and_name_a_bad_field():
+    """levers --variants: a JSON list is a tuple field's value (blocks), validated as Config's own
+    parser does; a bad value or a misspelt field stops with the variant's name."""
+    levers = _script("levers")
+    v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}}}')
+    assert v["base"] == (Config(), TrackConfig())
+    assert v["tiles"][0] == Config(blocks=(2, 4, 2, 1)) and v["tiles"][1].window == 1
+    with pytest.raises(SystemExit, match="tiles: .*blocks"):
+        levers.parse_variants('{"tiles": {"config": {"blocks": [0, 4]}}}')
+    with pytest.raises(SystemExit, match="slow: .*windw"):
+        levers.parse_variants('{"slow": {"policy": {"windw": 2}}}')
 
 
 def test_paper_sequences_seeds_and_config(tmp_path):

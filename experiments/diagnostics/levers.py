@@ -59,7 +59,7 @@ def parse_variants(text: str) -> dict:
         if not isinstance(spec, dict) or set(spec) - {"config", "policy"}:
             raise SystemExit(f"--variants: {name}: expected keys 'config' and/or 'policy'")
         try:
-            config = Config().replace(**common.config_changes(json.dumps(spec.get("config", {}))))
+            config = Config.from_dict(common.config_changes(json.dumps(spec.get("config", {}))))
             policy = TrackConfig(**spec.get("policy", {}))
             policy.validate()
         except (TypeError, ValueError) as e:
