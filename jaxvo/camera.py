@@ -5,6 +5,10 @@ centres sit at integer coordinates. A 3-D point ``(X, Y, Z)`` in the camera
 frame (x right, y down, z forward, metres) projects to
 ``u = fx * X / Z + cx``, ``v = fy * Y / Z + cy``.
 
+Lens distortion (:class:`Lens`, OpenCV's radial-tangential model) is not part of the
+camera the estimator sees: a distorted recording is undistorted to the pinhole ``Camera``
+with the same intrinsics when its frames are read (:func:`jaxvo.frame.undistort`).
+
 Pyramid level ``l`` halves the image ``l`` times by averaging 2x2 blocks, so a
 pixel centre ``c`` at level 0 lands at ``(c + 0.5) / 2 - 0.5`` at level 1:
 ``f_l = f / 2^l`` and ``c_l = (c + 0.5) / 2^l - 0.5``.
@@ -12,7 +16,7 @@ pixel centre ``c`` at level 0 lands at ``(c + 0.5) / 2 - 0.5`` at level 1:
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +26,7 @@ from jaxvo.validation import check_fields, integer, real
 
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
-    "camera_for_sequence", "camera_for_size", "backproject", "backproject_planes", "project",
+    "Lens", "NO_LENS", "LENSES", "camera_for_sequence", "lens_for_sequence", "undistortion_map", "camera_for_size", "backproject", "backproject_planes", "project",
 ]
 
 
@@ -88,15 +92,97 @@ DEFAULT = Camera(525.0, 525.0, 319.5, 239.5)
 PRESETS = {"fr1": TUM_FR1, "fr2": TUM_FR2, "fr3": TUM_FR3, "bonn": BONN, "default": DEFAULT}
 
 
-def camera_for_sequence(name: str) -> Camera:
-    """Pick the preset from a sequence folder name (``freiburg1/2/3``, ``rgbd_bonn_*``), else DEFAULT."""
+class Lens(NamedTuple):
+    """Lens distortion, OpenCV's radial-tangential (Brown-Conrady) model and coefficient order.
+
+    A point at normalised pinhole coordinates ``(x, y) = (X / Z, Y / Z)`` is imaged at
+    ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``,
+    ``y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y`` (``r^2 = x^2 + y^2``),
+    i.e. at pixel ``(fx x_d + cx, fy y_d + cy)``. All zeros (:data:`NO_LENS`): a pinhole camera.
+    Dimensionless, so the same for any image size of the same camera.
+    """
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    @property
+    def is_pinhole(self) -> bool:
+        return all(float(c) == 0.0 for c in self)
+
+    def distort(self, x, y) -> Tuple[np.ndarray, np.ndarray]:
+        """Normalised pinhole coordinates (x, y) (NumPy, any shape) -> where the lens images them."""
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        return (x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+                y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y)
+
+    def to_list(self) -> list:
+        return [float(c) for c in self]
+
+    @classmethod
+    def parse(cls, value) -> "Lens":
+        """A Lens from 5 numbers (k1, k2, p1, p2, k3; a list, or a string "k1,k2,p1,p2,k3"), a preset
+        name of :data:`LENSES`, or "none"; ValueError naming what is wrong otherwise."""
+        if isinstance(value, Lens):
+            return value
+        given = value
+        if isinstance(value, str):
+            if value.strip().lower() in ("none", "pinhole"):
+                return NO_LENS
+            if value.strip() in LENSES:
+                return LENSES[value.strip()]
+            value = [v for v in value.split(",")]
+        try:
+            coeffs = [float(v) for v in value]
+        except (TypeError, ValueError):
+            coeffs = None
+        if coeffs is None or len(coeffs) != 5 or not all(np.isfinite(coeffs)):
+            raise ValueError(f"lens must be 5 finite numbers k1,k2,p1,p2,k3 (OpenCV's order), 'none' or one of "
+                             f"{', '.join(sorted(LENSES))}, got {given!r}")
+        return cls(*coeffs)
+
+
+NO_LENS = Lens()
+#: Published distortion of the colour cameras: TUM fr1 and fr2 (the images are not undistorted),
+#: fr3 (already undistorted), Bonn (ASUS Xtion Pro Live, the dataset's calibration).
+LENSES = {"fr1": Lens(0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
+          "fr2": Lens(0.231222, -0.784899, -0.003257, -0.000105, 0.917205),
+          "fr3": NO_LENS, "bonn": Lens(0.039903, -0.099343, -0.000730, -0.000144, 0.0), "default": NO_LENS}
+
+
+def _preset_name(name: str) -> str:
+    """The key of :data:`PRESETS` / :data:`LENSES` for a sequence folder name (``freiburg1/2/3``,
+    ``rgbd_bonn_*``), else "default"."""
     n = str(name).lower()
     if "bonn" in n:
-        return BONN
-    for i, cam in ((1, TUM_FR1), (2, TUM_FR2), (3, TUM_FR3)):
+        return "bonn"
+    for i in (1, 2, 3):
         if f"freiburg{i}" in n or f"fr{i}" in n:
-            return cam
-    return DEFAULT
+            return f"fr{i}"
+    return "default"
+
+
+def camera_for_sequence(name: str) -> Camera:
+    """Pick the preset from a sequence folder name (``freiburg1/2/3``, ``rgbd_bonn_*``), else DEFAULT."""
+    return PRESETS[_preset_name(name)]
+
+
+def lens_for_sequence(name: str) -> Lens:
+    """The lens of the preset :func:`camera_for_sequence` picks (:data:`LENSES`)."""
+    return LENSES[_preset_name(name)]
+
+
+def undistortion_map(camera: Camera, lens: Lens) -> Tuple[np.ndarray, np.ndarray]:
+    """(map_u, map_v): (height, width) float32 each, where pixel (u, v) of the undistorted
+    (pinhole) image lies in the distorted one: ``lens.distort`` of its normalised coordinates,
+    through the same intrinsics (OpenCV's ``initUndistortRectifyMap`` with ``newCameraMatrix = K``)."""
+    fx, fy, cx, cy = (float(c) for c in (camera.fx, camera.fy, camera.cx, camera.cy))
+    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    xd, yd = lens.distort((u - cx) / fx, (v - cy) / fy)
+    return (fx * xd + cx).astype(np.float32), (fy * yd + cy).astype(np.float32)
 
 
 def camera_for_size(base: Camera, width: int, height: int) -> Camera:

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxvo.validation import check_values, choice, number
 
-__all__ = ["Frame", "make_frame", "luminance", "validate_pair", "validate_frame", "check_frame", "suggest_depth_scale",
+__all__ = ["Frame", "make_frame", "undistort", "luminance", "validate_pair", "validate_frame", "check_frame", "suggest_depth_scale",
            "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
 #: where a median valid depth (metres) is taken as plausible for an RGB-D camera
@@ -155,6 +155,41 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
                              f"the image size {d.shape[1]}x{d.shape[0]}")
         mask = mask != 0
     return Frame(np.ascontiguousarray(inten, dtype=np.float32), np.ascontiguousarray(z), mask)
+
+
+_MAPS: dict = {}   # (intrinsics, size, lens) -> undistortion_map
+
+
+def undistort(frame: Frame, camera, lens) -> Frame:
+    """``frame`` as the pinhole ``camera`` would image it, for a recording made through ``lens``
+    (:class:`jaxvo.camera.Lens`; the images are (camera.height, camera.width)): each pixel reads the
+    distorted images where :func:`jaxvo.camera.undistortion_map` puts it. Intensity bilinear
+    (edge pixels repeated beyond the border), depth and mask nearest (a depth is never blended
+    across an edge; beyond the border: depth 0, i.e. invalid, mask False). A pinhole lens
+    returns ``frame`` itself."""
+    if lens.is_pinhole:
+        return frame
+    import cv2
+
+    from jaxvo.camera import undistortion_map
+
+    key = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), camera.width, camera.height,
+           tuple(float(c) for c in lens))
+    if key not in _MAPS:
+        if len(_MAPS) > 8:
+            _MAPS.clear()
+        # float maps: OpenCV's fixed-point maps (convertMaps) would floor, not round, the nearest
+        # pixel, shifting depth by half a pixel against the intensity
+        _MAPS[key] = undistortion_map(camera, lens)
+    m1, m2 = _MAPS[key]
+    intensity = cv2.remap(np.asarray(frame.intensity, np.float32), m1, m2, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+    depth = cv2.remap(np.asarray(frame.depth, np.float32), m1, m2, cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    mask = None if frame.mask is None else cv2.remap(
+        np.asarray(frame.mask).astype(np.uint8), m1, m2, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0) != 0
+    return Frame(intensity, depth, mask)
 
 
 def check_frame(frame, what: str = "frame") -> None:

@@ -144,3 +144,73 @@ def test_camera_is_a_pytree_with_static_size():
     u = jax.vmap(lambda c: project(c, jnp.asarray([[0.1, 0.0, 1.0]]))[0][0],
                  in_axes=(Camera(0, None, None, None),))(cams)
     np.testing.assert_allclose(np.asarray(u), np.asarray(fxs) * 0.1 + 319.5, rtol=1e-6)
+
+
+# ----------------------------------------------------------------------------- lens distortion
+
+@pytest.mark.parametrize("name", ["fr1", "fr2", "bonn"])
+def test_lens_distorts_as_opencv_projects_and_maps_as_opencv_undistorts(name):
+    """Lens.distort against cv2.projectPoints (the same model, OpenCV's own code), and
+    undistortion_map against cv2.initUndistortRectifyMap with newCameraMatrix = K."""
+    import cv2
+
+    cam, lens = C.PRESETS[name], C.LENSES[name]
+    rng = np.random.default_rng(0)
+    P = np.column_stack([rng.uniform(-1.2, 1.2, 50), rng.uniform(-0.9, 0.9, 50), rng.uniform(1.5, 3.0, 50)])
+    uv, _ = cv2.projectPoints(P, np.zeros(3), np.zeros(3), cam.K, np.array(lens))
+    xd, yd = lens.distort(P[:, 0] / P[:, 2], P[:, 1] / P[:, 2])
+    np.testing.assert_allclose(np.column_stack([cam.fx * xd + cam.cx, cam.fy * yd + cam.cy]), uv[:, 0], atol=1e-6)
+    m1, m2 = cv2.initUndistortRectifyMap(cam.K, np.array(lens), None, cam.K, (cam.width, cam.height), cv2.CV_32FC1)
+    u, v = C.undistortion_map(cam, lens)
+    np.testing.assert_allclose(u, m1, atol=1e-3)
+    np.testing.assert_allclose(v, m2, atol=1e-3)
+
+
+def test_undistort_puts_a_distorted_point_at_its_pinhole_pixel():
+    """A depth reading where the fr2 lens images a point (near the corner: over 10 px from where a pinhole
+    would) lands, after undistort, at the point's pinhole projection; intensity and mask follow."""
+    from jaxvo.frame import Frame, undistort
+
+    cam, lens = TUM_FR2, C.LENSES["fr2"]
+    P = np.array([-1.1, -0.85, 2.0])
+    u0, v0 = _project_np(cam, P)
+    xd, yd = lens.distort(P[0] / P[2], P[1] / P[2])
+    ud, vd = cam.fx * xd + cam.cx, cam.fy * yd + cam.cy
+    assert np.hypot(ud - u0, vd - v0) > 10
+    depth = np.zeros((cam.height, cam.width), np.float32)
+    intensity = np.zeros_like(depth)
+    mask = np.zeros(depth.shape, bool)
+    r, c = int(round(vd)), int(round(ud))
+    depth[r - 2:r + 3, c - 2:c + 3] = 2.0
+    intensity[r - 2:r + 3, c - 2:c + 3] = 200.0
+    mask[r - 2:r + 3, c - 2:c + 3] = True
+    out = undistort(Frame(intensity, depth, mask), cam, lens)
+    rows, cols = np.nonzero(out.depth)
+    assert abs(rows.mean() - v0) < 1.0 and abs(cols.mean() - u0) < 1.0
+    assert set(np.unique(out.depth)) == {0.0, 2.0}          # nearest: never a blend of depths
+    np.testing.assert_array_equal(out.mask, out.depth > 0)
+    assert out.intensity[int(round(v0)), int(round(u0))] == pytest.approx(200.0, abs=1.0)
+    frame = Frame(intensity, depth)
+    assert undistort(frame, cam, C.NO_LENS) is frame         # a pinhole lens: the frame itself
+    # every pixel reads the nearest one (rounded, not floored: depth stays on the intensity's grid)
+    import cv2
+    rng = np.random.default_rng(1)
+    noisy = Frame(rng.uniform(0, 255, depth.shape).astype(np.float32), rng.uniform(0.5, 4, depth.shape).astype(np.float32))
+    m1, m2 = cv2.initUndistortRectifyMap(cam.K, np.array(lens), None, cam.K, (cam.width, cam.height), cv2.CV_32FC1)
+    np.testing.assert_array_equal(undistort(noisy, cam, lens).depth, cv2.remap(noisy.depth, m1, m2, cv2.INTER_NEAREST))
+    np.testing.assert_allclose(undistort(noisy, cam, lens).intensity,
+                               cv2.remap(noisy.intensity, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+                               atol=1e-3)
+
+
+def test_lens_presets_and_parse():
+    assert C.lens_for_sequence("rgbd_dataset_freiburg2_desk") == C.LENSES["fr2"]
+    assert C.lens_for_sequence("rgbd_dataset_freiburg3_walking_xyz").is_pinhole
+    assert C.lens_for_sequence("rgbd_bonn_crowd") == C.LENSES["bonn"]
+    assert C.lens_for_sequence("my_room").is_pinhole
+    assert C.Lens.parse("fr1") == C.LENSES["fr1"] and C.Lens.parse("none") == C.NO_LENS
+    assert C.Lens.parse("0.1,-0.2,0,0,0.05") == C.Lens(0.1, -0.2, 0.0, 0.0, 0.05)
+    assert C.Lens.parse([0.1, -0.2, 0, 0, 0.05]) == C.Lens(0.1, -0.2, 0.0, 0.0, 0.05)
+    for bad in ("0.1,0.2", "a,b,c,d,e", "fr9", [0, 0, 0, 0, float("nan")], 3):
+        with pytest.raises(ValueError, match="lens must be 5 finite numbers"):
+            C.Lens.parse(bad)

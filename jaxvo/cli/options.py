@@ -97,6 +97,18 @@ def size_option(ctx, param, value):
         raise click.BadParameter(str(e).split(": ", 1)[-1]) from None
 
 
+def lens_option(ctx, param, value):
+    """Click callback of --lens: :meth:`jaxvo.camera.Lens.parse` of the text (None stays None), or a
+    usage error."""
+    if value is None:
+        return None
+    from jaxvo.camera import Lens
+    try:
+        return Lens.parse(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
+
+
 def sequence_with_trajectory(f):
     """The options of the commands that read a sequence folder with a trajectory (map, masks)."""
     options = [

@@ -8,7 +8,7 @@ import click
 import numpy as np
 
 from jaxvo.camera import PRESETS
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, compile_note, device
+from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, compile_note, device, lens_option
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
@@ -113,6 +113,11 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @click.option("--fy", type=float, default=None, help="Override the focal length fy (pixels).")
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
+@click.option("--lens", default=None, callback=lens_option, metavar="LENS",
+              help="The lens distortion the images were taken through, undistorted as they are read: "
+                   "k1,k2,p1,p2,k3 (OpenCV's order), a preset (fr1, fr2, bonn) or none. [default: the "
+                   "preset of --camera, else of the folder name where its intrinsics are used (TUM fr1 and "
+                   "fr2, Bonn), else none]")
 @click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
@@ -142,7 +147,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @compilation_cache
 @handle_errors
 def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
-            finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, max_dt, keyframe_gap,
+            finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, lens, max_dt, keyframe_gap,
             keyframe_lag, segment, window, frame_to_frame, paper, no_progress, force):
     dirs = expand_sequences(sequence_dirs)
     ctx = click.get_current_context()
@@ -162,7 +167,7 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                       paper=paper,
                       camera_preset=camera_preset, fx=fx, fy=fy, cx=cx, cy=cy, depth_scale=depth_scale,
                       max_dt=given("max_dt", max_dt), start=given("start", start), max_frames=max_frames,
-                      mask_dir=mask_dir, from_header=len(dirs) == 1)
+                      mask_dir=mask_dir, lens=lens, from_header=len(dirs) == 1)
     if setup.machine_differences:
         click.echo(f"note: {config_file} was written on another machine ({'; '.join(setup.machine_differences)}); "
                    "the rerun may differ at float rounding, which the robust steps through a crowd can grow "
@@ -175,7 +180,8 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
         return
     seq, config = plan.sequences[0], setup.config
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
-               f"(from {seq.camera_source}), depth scale {seq.depth_scale:g}, device {device()}", err=True)
+               f"(from {seq.camera_source}){_lens_note(seq)}, depth scale {seq.depth_scale:g}, device {device()}",
+               err=True)
     compile_note()
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
     # the trajectory grows, flushed line by line, under a .partial name; it gets its name when complete
@@ -297,3 +303,11 @@ def _print_run_summary(run):
         if a is not None:
             lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames)")
     click.echo("\n".join(lines))
+
+
+def _lens_note(seq) -> str:
+    """``", undistorted (lens k1=..., from ...)"`` where the reader undistorts the images, else ""."""
+    lens = getattr(seq, "lens", None)
+    if lens is None or lens.is_pinhole:
+        return ""
+    return f", undistorted (lens {', '.join(f'{k}={v:g}' for k, v in lens._asdict().items())}, from {seq.lens_source})"

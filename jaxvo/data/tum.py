@@ -23,14 +23,14 @@ from typing import Iterator, Optional, Tuple
 
 import numpy as np
 
-from jaxvo.camera import Camera
+from jaxvo.camera import NO_LENS, Camera, Lens, lens_for_sequence
 from jaxvo.data.calibration import check_depth_scale, sequence_camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
 from jaxvo.data.masks import match_masks, read_frame_mask
 from jaxvo.data.stamps import associate, interpolate_poses
 from jaxvo.data.textfiles import read_file_list
-from jaxvo.frame import Frame, make_frame
+from jaxvo.frame import Frame, make_frame, undistort
 from jaxvo.validation import Rule, check_values, integer, number
 
 __all__ = ["TumSequence", "check_reader_options"]
@@ -81,9 +81,15 @@ class TumSequence:
         pixel may be used, e.g. 0 on a detector's people), named like the colour image or
         ``<timestamp>.png``; fills :attr:`jaxvo.frame.Frame.mask` (frames without one: None, all
         pixels usable).
+      lens: the :class:`jaxvo.camera.Lens` the images were taken through: each frame is
+        undistorted to ``camera`` as it is read (:func:`jaxvo.frame.undistort`). None = the
+        folder's: the preset lens of its name (:func:`jaxvo.camera.lens_for_sequence`: TUM fr1
+        and fr2, Bonn) where the camera is that preset, else none (calibration files, given or
+        guessed intrinsics: pinhole images). ``NO_LENS`` reads the images as they are.
 
     Attributes:
-      camera, timestamps ((N,) float64 rgb timestamps of the used frames, seconds),
+      camera, lens, lens_source (where the lens came from), timestamps ((N,) float64 rgb
+      timestamps of the used frames, seconds),
       depth_timestamps ((N,)), rgb_paths / depth_paths (lists of Path), name, path, is_bonn.
     """
 
@@ -93,7 +99,7 @@ class TumSequence:
 
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
                  depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
-                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None):
+                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens: Optional[Lens] = None):
         check_reader_options(path, max_dt=max_dt, depth_scale=depth_scale, start=start, max_frames=max_frames,
                              bonn=bonn, gt_slack=gt_slack)
         if mask_dir is not None and not isinstance(mask_dir, (str, os.PathLike)):
@@ -140,6 +146,12 @@ class TumSequence:
             self.camera.validate()
         except ValueError as e:
             raise DatasetError(f"{self.path}: {e} (camera from {self.camera_source})") from None
+        if lens is not None:
+            self.lens, self.lens_source = Lens.parse(lens), "given"
+        elif self.camera_source == "folder name":
+            self.lens, self.lens_source = lens_for_sequence(self.name), "folder name"
+        else:
+            self.lens, self.lens_source = NO_LENS, "none: pinhole images"
         self._gt = None
         self._gt_loaded = False
         self._depth_checked = False
@@ -239,6 +251,7 @@ class TumSequence:
                             mask=mask)
         except ValueError as e:
             raise DatasetError(str(e)) from None
+        fr = undistort(fr, self.camera, self.lens)
         if not self._depth_checked:
             check_depth_scale(fr.depth, self.depth_scale, self.depth_paths[i], explicit=self._scale_given)
             self._depth_checked = True

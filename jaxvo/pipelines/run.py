@@ -30,7 +30,7 @@ from typing import Callable, List, Optional, Sequence, Tuple
 import numpy as np
 
 from jaxvo.runtime import machine
-from jaxvo.camera import PRESETS, Camera
+from jaxvo.camera import LENSES, PRESETS, Camera, Lens
 from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path, write_text
 from jaxvo.data import DatasetError, TumSequence, find_sequences, open_sequence
 from jaxvo.evaluation.scoring import TrajectoryErrors, trajectory_errors
@@ -135,20 +135,27 @@ def run_header(config, policy, seed: int, seq: Optional[TumSequence] = None) -> 
                 "depth_scale": seq.depth_scale, "max_dt": seq.max_dt,
                 "camera": {"fx": float(c.fx), "fy": float(c.fy), "cx": float(c.cx), "cy": float(c.cy),
                            "width": c.width, "height": c.height},
+                "lens": seq.lens.to_list(),
                 "mask_dir": None if seq.mask_dir is None else str(seq.mask_dir)}
         lines.append(f"# sequence: {json.dumps(info)}")
     return lines
 
 
-def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None,
+def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=None, cy=None, lens=None,
                   **kwargs) -> TumSequence:
     """Open a sequence folder of any supported layout (:func:`jaxvo.data.open_sequence`) with the
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
-    (pixels) override single values. ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go to
-    the reader. ``seq.camera_source`` says where the intrinsics came from.
+    (pixels) override single values. ``lens`` (a :class:`jaxvo.camera.Lens`, or what
+    :meth:`jaxvo.camera.Lens.parse` reads): the images' distortion; None = the preset's lens, else
+    the folder's (see :class:`jaxvo.data.TumSequence`). ``kwargs`` (depth_scale, max_dt, start,
+    max_frames, ...) go to the reader. ``seq.camera_source`` / ``seq.lens_source`` say where the
+    intrinsics and the lens came from.
     """
-    seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None, **kwargs)
+    if lens is None and preset is not None:
+        lens = LENSES[preset]
+    seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None,
+                        lens=None if lens is None else Lens.parse(lens), **kwargs)
     if preset is not None:
         seq.camera_source = f"preset {preset}"
     over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}
@@ -460,11 +467,12 @@ class ReaderOptions:
     max_frames: Optional[int] = None
     mask_dir: Optional[Path] = None
     camera_from: Optional[str] = None
+    lens: Optional[Lens] = None
 
     def open(self, path) -> TumSequence:
         """The sequence folder ``path`` opened with these options (``camera_from``, when set, names
-        where fx, fy, cx, cy came from, e.g. a trajectory header)."""
-        seq = load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy,
+        where fx, fy, cx, cy came from, e.g. a trajectory header; ``lens`` None: the folder's)."""
+        seq = load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy, lens=self.lens,
                             depth_scale=self.depth_scale, max_dt=self.max_dt, start=self.start,
                             max_frames=self.max_frames, mask_dir=self.mask_dir)
         if self.camera_from is not None:
@@ -494,14 +502,14 @@ class RunSetup:
 def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=None, finest_level=None,
               seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None, window=None,
               frame_to_frame: bool = False, paper: bool = False, camera_preset=None, fx=None, fy=None, cx=None,
-              cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None,
+              cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None, lens=None,
               from_header: bool = True) -> RunSetup:
     """The settings of a run: options given (None = not given) over a config file's.
 
     ``config_file`` is a JSON object of Config fields, or a trajectory written by
     :func:`run_sequence`: its header gives the config, seed, keyframe policy and, with
     ``from_header`` (one sequence), the reader's settings (start, frames, max_dt, depth scale,
-    user masks, intrinsics), so the run is reproduced bitwise on the same machine. Options not
+    user masks, intrinsics, lens), so the run is reproduced bitwise on the same machine. Options not
     given and not in the file take their defaults (seed 0, start 0, max_dt 0.02 s).
     ``paper``: :meth:`jaxvo.config.Config.paper` and frame to frame; ``keyframe_gap``,
     ``keyframe_lag``, ``segment``, ``window``, ``frame_to_frame``: :func:`track_policy`.
@@ -533,7 +541,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
         raise DatasetError(f"{config_file}: '# sequence:' header: expected a JSON object, got {sq!r}")
     given = {"start": start, "frames": max_frames, "max_dt": max_dt, "depth_scale": depth_scale,
              "mask_dir": mask_dir, "camera": None if camera_preset is None and (fx, fy, cx, cy) == (None,) * 4
-             else "given"}
+             else "given", "lens": lens}
     camera_from = None
     if sq:
         h = functools.partial(_header_value, config_file)
@@ -551,8 +559,14 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
             fx, fy, cx, cy = (h(f"camera.{k}", c.get(k), "a number > 0 (pixels)", float, 0)
                               for k in ("fx", "fy", "cx", "cy"))
             camera_from = f"the header of {config_file}"
+        if lens is None and sq.get("lens") is not None:
+            try:
+                lens = Lens.parse(sq["lens"])
+            except ValueError as e:
+                raise DatasetError(f"{config_file}: header field \"lens\": {e}") from None
     reader = ReaderOptions(camera_preset, fx, fy, cx, cy, depth_scale, 0.02 if max_dt is None else max_dt,
-                           0 if start is None else start, max_frames, mask_dir, camera_from)
+                           0 if start is None else start, max_frames, mask_dir, camera_from,
+                           None if lens is None else Lens.parse(lens))
     sources, missing = _provenance(config_file, settings, sq, given, from_header)
     return RunSetup(config, policy, int(seed), reader, tuple(diffs), sources, missing,
                     sq.get("path") if sq else None)
@@ -573,7 +587,7 @@ def _header_value(path, name: str, value, what: str, kind, low=None):
 
 
 #: the reader's settings a trajectory header of jaxvo run holds
-_HEADER_SEQUENCE = ("start", "frames", "max_dt", "depth_scale", "camera", "mask_dir")
+_HEADER_SEQUENCE = ("start", "frames", "max_dt", "depth_scale", "camera", "lens", "mask_dir")
 
 
 def _provenance(config_file, settings, sq: dict, given: dict, from_header: bool):
