@@ -114,10 +114,8 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
 @click.option("--lens", default=None, callback=lens_option, metavar="LENS",
-              help="The lens distortion the images were taken through, undistorted as they are read: "
-                   "k1,k2,p1,p2,k3 (OpenCV's order), a preset (fr1, fr2, bonn) or none. [default: the "
-                   "preset of --camera, else of the folder name where its intrinsics are used (TUM fr1 and "
-                   "fr2, Bonn), else none]")
+              help="Undistort the images as they are read, for this lens: k1,k2,p1,p2,k3 (OpenCV's order) "
+                   "or a published one: fr1, fr2 (TUM), bonn. [default: none, the images as they are]")
 @click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
@@ -310,4 +308,4 @@ def _lens_note(seq) -> str:
     lens = getattr(seq, "lens", None)
     if lens is None or lens.is_pinhole:
         return ""
-    return f", undistorted (lens {', '.join(f'{k}={v:g}' for k, v in lens._asdict().items())}, from {seq.lens_source})"
+    return f", undistorted (lens {', '.join(f'{k}={v:g}' for k, v in lens._asdict().items())})"

@@ -23,7 +23,7 @@ from typing import Iterator, Optional, Tuple
 
 import numpy as np
 
-from jaxvo.camera import NO_LENS, Camera, Lens, lens_for_sequence
+from jaxvo.camera import NO_LENS, Camera, Lens
 from jaxvo.data.calibration import check_depth_scale, sequence_camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
@@ -81,15 +81,14 @@ class TumSequence:
         pixel may be used, e.g. 0 on a detector's people), named like the colour image or
         ``<timestamp>.png``; fills :attr:`jaxvo.frame.Frame.mask` (frames without one: None, all
         pixels usable).
-      lens: the :class:`jaxvo.camera.Lens` the images were taken through: each frame is
-        undistorted to ``camera`` as it is read (:func:`jaxvo.frame.undistort`). None = the
-        folder's: the preset lens of its name (:func:`jaxvo.camera.lens_for_sequence`: TUM fr1
-        and fr2, Bonn) where the camera is that preset, else none (calibration files, given or
-        guessed intrinsics: pinhole images). ``NO_LENS`` reads the images as they are.
+      lens: the :class:`jaxvo.camera.Lens` the images were taken through (or what
+        :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers): each frame is undistorted
+        to ``camera`` as it is read (:func:`jaxvo.frame.undistort`; the published lenses of TUM
+        fr1, fr2 and Bonn: :data:`jaxvo.camera.LENSES`, :func:`jaxvo.camera.lens_for_sequence`).
+        None: the images are read as they are (a pinhole camera).
 
     Attributes:
-      camera, lens, lens_source (where the lens came from), timestamps ((N,) float64 rgb
-      timestamps of the used frames, seconds),
+      camera, lens, timestamps ((N,) float64 rgb timestamps of the used frames, seconds),
       depth_timestamps ((N,)), rgb_paths / depth_paths (lists of Path), name, path, is_bonn.
     """
 
@@ -146,12 +145,7 @@ class TumSequence:
             self.camera.validate()
         except ValueError as e:
             raise DatasetError(f"{self.path}: {e} (camera from {self.camera_source})") from None
-        if lens is not None:
-            self.lens, self.lens_source = Lens.parse(lens), "given"
-        elif self.camera_source == "folder name":
-            self.lens, self.lens_source = lens_for_sequence(self.name), "folder name"
-        else:
-            self.lens, self.lens_source = NO_LENS, "none: pinhole images"
+        self.lens = NO_LENS if lens is None else Lens.parse(lens)
         self._gt = None
         self._gt_loaded = False
         self._depth_checked = False

@@ -30,7 +30,7 @@ from typing import Callable, List, Optional, Sequence, Tuple
 import numpy as np
 
 from jaxvo.runtime import machine
-from jaxvo.camera import LENSES, PRESETS, Camera, Lens
+from jaxvo.camera import PRESETS, Camera, Lens
 from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path, write_text
 from jaxvo.data import DatasetError, TumSequence, find_sequences, open_sequence
 from jaxvo.evaluation.scoring import TrajectoryErrors, trajectory_errors
@@ -147,13 +147,10 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
     (pixels) override single values. ``lens`` (a :class:`jaxvo.camera.Lens`, or what
-    :meth:`jaxvo.camera.Lens.parse` reads): the images' distortion; None = the preset's lens, else
-    the folder's (see :class:`jaxvo.data.TumSequence`). ``kwargs`` (depth_scale, max_dt, start,
-    max_frames, ...) go to the reader. ``seq.camera_source`` / ``seq.lens_source`` say where the
-    intrinsics and the lens came from.
+    :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers): the images are undistorted as they
+    are read (None: read as they are). ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go
+    to the reader. ``seq.camera_source`` says where the intrinsics came from.
     """
-    if lens is None and preset is not None:
-        lens = LENSES[preset]
     seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None,
                         lens=None if lens is None else Lens.parse(lens), **kwargs)
     if preset is not None:
@@ -471,7 +468,7 @@ class ReaderOptions:
 
     def open(self, path) -> TumSequence:
         """The sequence folder ``path`` opened with these options (``camera_from``, when set, names
-        where fx, fy, cx, cy came from, e.g. a trajectory header; ``lens`` None: the folder's)."""
+        where fx, fy, cx, cy came from, e.g. a trajectory header; ``lens`` None: none)."""
         seq = load_sequence(path, self.camera_preset, self.fx, self.fy, self.cx, self.cy, lens=self.lens,
                             depth_scale=self.depth_scale, max_dt=self.max_dt, start=self.start,
                             max_frames=self.max_frames, mask_dir=self.mask_dir)

@@ -10,7 +10,7 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.frame import undistort
-from jaxvo.camera import BONN, DEFAULT, LENSES, NO_LENS, TUM_FR2, Camera, camera_for_size
+from jaxvo.camera import BONN, DEFAULT, LENSES, NO_LENS, TUM_FR2, Camera, camera_for_size, lens_for_sequence
 from jaxvo.data import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                         data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
                         read_pose_file)
@@ -96,36 +96,30 @@ def test_camera_from_folder_name(tmp_path):
     assert TumSequence(d, camera=SMALL, bonn=False).camera == SMALL
 
 
-def test_lens_from_folder_name_only_with_its_preset_camera(tmp_path):
-    """The folder's lens is its name's preset where the camera is that preset (640x480), else none:
-    a guessed (scaled) camera, a given one or a calibration file reads the images as they are;
-    lens= overrides, and frames are undistorted with it as they are read."""
+def test_lens_undistorts_frames_as_they_are_read(tmp_path):
+    """No lens by default (the images as they are); lens= (a Lens, a preset name or 5 numbers)
+    undistorts each frame as it is read, exactly as jaxvo.frame.undistort does."""
     d = make_seq(tmp_path, name="rgbd_dataset_freiburg2_fake", n=2)
-    s = TumSequence(d)
-    assert s.lens == NO_LENS and s.lens_source.startswith("none")     # 8x6 images: a guessed camera
-    s = TumSequence(d, camera=SMALL, lens=LENSES["fr2"])
-    assert s.lens == LENSES["fr2"] and s.lens_source == "given"
+    assert TumSequence(d).lens == NO_LENS
+    s = TumSequence(d, camera=SMALL, lens="fr2")
+    assert s.lens == LENSES["fr2"]
     raw = TumSequence(d, camera=SMALL).frame(0)
     np.testing.assert_array_equal(s.frame(0).depth, undistort(raw, SMALL, LENSES["fr2"]).depth)
     with pytest.raises(ValueError, match="lens must be"):
         TumSequence(d, camera=SMALL, lens="0,1")
 
 
-def test_real_sequences_take_their_lens(tmp_path):
-    """fr2/desk and Bonn read through their published lenses (undistorted as read); fr3 is already
-    undistorted; NO_LENS gives the images as they are."""
-    root = data_root()
-    fr2, bonn = root / "tum" / "rgbd_dataset_freiburg2_desk", root / "bonn" / "rgbd_bonn_crowd"
-    fr3 = root / "tum" / "rgbd_dataset_freiburg3_long_office_household"
-    if not all(p.is_dir() for p in (fr2, bonn, fr3)):
-        pytest.skip(f"real data missing under {root} (set JAXVO_DATA to the data root)")
-    for path, lens in ((fr2, LENSES["fr2"]), (bonn, LENSES["bonn"]), (fr3, NO_LENS)):
-        s = TumSequence(path, max_frames=1)
-        assert s.lens == lens and s.lens_source == "folder name"
-    s, plain = TumSequence(fr2, max_frames=1), TumSequence(fr2, max_frames=1, lens=NO_LENS)
+def test_real_sequence_undistorted_with_its_published_lens():
+    """fr2/desk with lens="fr2": every frame is the undistorted raw frame; corners read beyond the
+    image get no depth."""
+    fr2 = data_root() / "tum" / "rgbd_dataset_freiburg2_desk"
+    if not fr2.is_dir():
+        pytest.skip(f"real data missing: {fr2} (set JAXVO_DATA to the data root)")
+    s, plain = TumSequence(fr2, max_frames=1, lens="fr2"), TumSequence(fr2, max_frames=1)
+    assert plain.lens == NO_LENS and s.lens == lens_for_sequence(s.name) == LENSES["fr2"]
     f, g = s.frame(0), plain.frame(0)
     np.testing.assert_array_equal(f.intensity, undistort(g, s.camera, LENSES["fr2"]).intensity)
-    assert not np.array_equal(f.depth, g.depth) and f.depth[0, 0] == 0    # the corners read beyond the image
+    assert not np.array_equal(f.depth, g.depth) and f.depth[0, 0] == 0
 
 
 def test_camera_size_mismatch_is_reported(tmp_path):
