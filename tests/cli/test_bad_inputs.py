@@ -203,6 +203,7 @@ CLI_CASES = [
     ("config-not-utf8", lambda c: ["run", c.seq, "--config", c.write("cfg.json", b'{"p": "\xff"}', True)],
      "not UTF-8"),
     ("config-missing", lambda c: ["run", c.seq, "--config", c.root / "none.json"], "config file not found"),
+    ("run-lens-two-numbers", lambda c: ["run", c.seq, "--lens", "0.1,0.2"], "--lens': lens must be 5 finite numbers"),
     ("config-is-folder", lambda c: ["run", c.seq, "--config", c.seq], "is a folder"),
     # --- eval
     ("eval-missing-estimate", lambda c: ["eval", c.seq, c.root / "none.txt"], "file not found"),

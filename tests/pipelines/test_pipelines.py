@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from jaxvo.camera import DEFAULT
+from jaxvo.camera import DEFAULT, LENSES, NO_LENS
 from jaxvo.config import Config, TrackConfig
 from jaxvo.data import DatasetError, TumSequence
 from jaxvo.data.trajectory import write_tum_trajectory
@@ -58,7 +58,14 @@ def test_setup_run_merges_a_trajectory_header_under_the_options_given(tmp_path, 
     s = setup_run(traj)
     assert isinstance(s, RunSetup) and s.seed == 7 and s.config.method == "huber" and s.policy.max_gap == 3
     assert s.reader == ReaderOptions(fx=CAM.fx, fy=CAM.fy, cx=CAM.cx, cy=CAM.cy, depth_scale=5000.0, max_dt=0.03,
-                                     start=1, max_frames=2, camera_from=f"the header of {traj}")
+                                     start=1, max_frames=2, camera_from=f"the header of {traj}", lens=NO_LENS)
+    # a lens the run read with is read back with its header; one given overrides it
+    lensed = tmp_path / "lens.txt"
+    lensed.write_text("\n".join(run_header(Config(), TrackConfig(), 0, TumSequence(a, camera=CAM, lens="fr2")))
+                      + "\n")
+    assert setup_run(lensed).reader.lens == LENSES["fr2"]
+    assert setup_run(lensed, lens=LENSES["bonn"]).reader.lens == LENSES["bonn"]
+    assert setup_run(lensed).reader.open(a).lens == LENSES["fr2"]
     assert s.machine_differences == () and s.missing == () and s.header_sequence == str(a)
     assert f"frames: {traj}" in s.sources and f"camera: {traj}" in s.sources
     _frozen(s)
