@@ -156,6 +156,19 @@ def load_frames(seq: datasets.TumSequence, indices: Optional[Iterable[int]] = No
     return [seq.frame(i) for i in idx]
 
 
+def perturbed(frames: list, draw: int, amplitude: float = 0.25) -> list:
+    """``frames`` with uniform noise in [-amplitude, amplitude] grey levels added to every pixel's
+    luminance, the noise of ``draw`` (its own NumPy generator; draw 0: the frames themselves).
+    Under half a grey level, below the 8-bit colour's own rounding: it samples how much a result
+    owes to the exact input, which the PRNG seeds do not (docs/decisions/lens.md)."""
+    if draw == 0:
+        return frames
+    rng = np.random.default_rng([draw, 0x6A78])
+    return [f._replace(intensity=(np.asarray(f.intensity, np.float32)
+                                  + rng.uniform(-amplitude, amplitude, np.shape(f.intensity))).astype(np.float32))
+            for f in frames]
+
+
 def resolve_sequence(arg, name: str, sub: str) -> Path:
     """A sequence folder: ``arg`` if given, else ``<data root>/<sub>/<name>``; SystemExit naming
     what is missing."""

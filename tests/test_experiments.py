@@ -308,6 +308,26 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
         levers.parse_variants('{"slow": {"policy": {"windw": 2}}}')
 
 
+def test_perturbed_inputs_are_sub_grey_level_and_reproducible():
+    """common.perturbed: draw 0 is the frames themselves; another draw adds the same noise every
+    time, within +-0.25 grey levels, to the luminance only; draws differ from each other."""
+    from jaxvo.frame import Frame
+    common = _script("common")
+    rng = np.random.default_rng(0)
+    frames = [Frame(rng.uniform(0, 255, (6, 8)).astype(np.float32), rng.uniform(1, 2, (6, 8)).astype(np.float32),
+                    np.ones((6, 8), bool)) for _ in range(3)]
+    assert common.perturbed(frames, 0) is frames
+    a, b, c = common.perturbed(frames, 1), common.perturbed(frames, 1), common.perturbed(frames, 2)
+    for f, x, y, z in zip(frames, a, b, c):
+        d = x.intensity - f.intensity
+        assert x.intensity.dtype == np.float32 and 0 < np.abs(d).max() <= 0.25 + 1e-4
+        np.testing.assert_array_equal(x.intensity, y.intensity)
+        assert not np.array_equal(x.intensity, z.intensity)
+        assert x.depth is f.depth and x.mask is f.mask
+    with pytest.raises(SystemExit, match="--perturb"):
+        _script("levers").main(["--perturb", "0"])
+
+
 def test_paper_sequences_seeds_and_config(tmp_path):
     """--seeds: one full run per seed (its own scene), a row per seed and a mean-and-range table;
     --config reaches the estimator (a coarser finest level changes the estimate)."""

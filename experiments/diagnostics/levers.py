@@ -8,7 +8,9 @@ warm-up pass per variant to compile); the variants and OpenCV's RGB odometry ove
 are timed in turn, pass by pass, so that other processes on the machine weigh on all alike.
 Reported per variant and sequence: mean and median ms per frame, the ratio of the mean to
 OpenCV's mean, estimates per frame, ATE and RPE over 1 s (mean and range over the seeds), held
-frames. The speed benchmark (``experiments/speed.py``) says where the default's time goes; this
+frames. ``--perturb K`` runs each seed on K inputs: the frames as read and K - 1 draws of
+sub-grey-level luminance noise (:func:`experiments.common.perturbed`), since a result on the Bonn
+excerpt moves with such changes more than with the seed. The speed benchmark (``experiments/speed.py``) says where the default's time goes; this
 script measures what a lever found there would change.
 
 Example::
@@ -47,6 +49,9 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
                          "first is the baseline (default: %(default)s)")
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated PRNG seeds (default 0,1,2)")
     ap.add_argument("--max-frames", type=int, default=None, help="at most N frames per sequence")
+    ap.add_argument("--perturb", type=int, default=1,
+                    help="inputs per seed: the frames as read, then K - 1 draws of +-0.25 grey-level luminance "
+                         "noise (default 1: as read)")
     ap.add_argument("--out", default=str(common.RESULTS / "levers" / "levers.md"), help="markdown output")
     return ap.parse_args(argv)
 
@@ -85,6 +90,8 @@ def run_pass(seq, frames, config: Config, policy: TrackConfig, key):
 
 def main(argv=None):
     args = parse_args(argv)
+    if args.perturb < 1:
+        raise SystemExit(f"--perturb: expected an integer >= 1 (inputs per seed), got {args.perturb}")
     variants = parse_variants(args.variants)
     seeds = common.int_list(args.seeds)
     paths = args.sequences or common.default_sequences()
@@ -98,14 +105,16 @@ def main(argv=None):
         results = {name: [] for name in variants}
         for name, (config, policy) in variants.items():   # warm-up: compile each variant
             run_pass(seq, frames[:3], config, policy, jax.random.key(seeds[0]))
-        for seed in seeds:
-            order = list(variants) if seed % 2 == 0 else list(variants)[::-1]
+        for run, (seed, draw) in enumerate((s, d) for d in range(args.perturb) for s in seeds):
+            inputs = common.perturbed(frames, draw)
+            order = list(variants) if run % 2 == 0 else list(variants)[::-1]
             for name in order:
                 config, policy = variants[name]
-                secs, rel, n_est, held = run_pass(seq, frames, config, policy, jax.random.key(seed))
+                secs, rel, n_est, held = run_pass(seq, inputs, config, policy, jax.random.key(seed))
                 times[name].append(secs)
                 results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
-                common.log(f"  seed {seed} {name}: {secs.mean() * 1000:.1f} ms/frame, ATE {results[name][-1]['ate']:.4f}")
+                common.log(f"  seed {seed} input {draw} {name}: {secs.mean() * 1000:.1f} ms/frame, "
+                            f"ATE {results[name][-1]['ate']:.4f}")
             cv.append(common.run_method("opencv-rgb", frames, seq.camera, warmup=False)["seconds"])
         cv_mean = float(np.mean(np.concatenate(cv))) * 1000
         for name in variants:
@@ -123,10 +132,11 @@ def main(argv=None):
                          "held": float(np.mean([r["held"] for r in res]))})
     lines = common.provenance_md("Levers on the default odometry: time and accuracy, whole sequences", __file__, argv)
     lines += [f"Variants (fields changed from `Config()` / `TrackConfig()`): `{args.variants}`. Seeds "
-              f"{args.seeds}. Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
+              f"{args.seeds}, each on {args.perturb} input(s) (the frames as read"
+              f"{', then draws of +-0.25 grey-level luminance noise' if args.perturb > 1 else ''}). Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
               "after a warm-up; `/ OpenCV`: the mean against OpenCV rgb's mean over the same pairs, timed "
               "between the passes. `estimates`: `estimate_motion` calls per frame. ATE, RPE 1 s: mean over the "
-              "seeds [range].", ""]
+              "runs (seeds x inputs) [range].", ""]
     lines += common.md_table(rows, [("sequence", "sequence", ""), ("variant", "variant", ""),
                                     ("mean ms", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
                                     ("/ OpenCV", "ratio_opencv", ".2f"), ("estimates", "estimates", ".2f"),
