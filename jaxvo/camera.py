@@ -26,7 +26,8 @@ from jaxvo.validation import check_fields, integer, real
 
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
-    "Lens", "NO_LENS", "LENSES", "camera_for_sequence", "lens_for_sequence", "undistortion_map", "camera_for_size", "backproject", "backproject_planes", "project",
+    "Lens", "NO_LENS", "LENSES", "camera_for_sequence", "lens_for_sequence", "undistortion_map", "camera_for_size",
+    "backproject", "backproject_planes", "project",
 ]
 
 
@@ -134,7 +135,7 @@ class Lens(NamedTuple):
                 return NO_LENS
             if value.strip() in LENSES:
                 return LENSES[value.strip()]
-            value = [v for v in value.split(",")]
+            value = value.split(",")
         try:
             coeffs = [float(v) for v in value]
         except (TypeError, ValueError):

@@ -304,7 +304,7 @@ def _print_run_summary(run):
 
 
 def _lens_note(seq) -> str:
-    """``", undistorted (lens k1=..., from ...)"`` where the reader undistorts the images, else ""."""
+    """``", undistorted (lens k1=..., ...)"`` where the reader undistorts the images, else ""."""
     lens = getattr(seq, "lens", None)
     if lens is None or lens.is_pinhole:
         return ""

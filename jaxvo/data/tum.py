@@ -98,7 +98,7 @@ class TumSequence:
 
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
                  depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
-                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens: Optional[Lens] = None):
+                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens=None):
         check_reader_options(path, max_dt=max_dt, depth_scale=depth_scale, start=start, max_frames=max_frames,
                              bonn=bonn, gt_slack=gt_slack)
         if mask_dir is not None and not isinstance(mask_dir, (str, os.PathLike)):
