@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jaxvo.camera import LENSES, NO_LENS
 from jaxvo.config import Config, TrackConfig
 from jaxvo.data import data_root
 
@@ -299,13 +300,17 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
     """levers --variants: a JSON list is a tuple field's value (blocks), validated as Config's own
     parser does; a bad value or a misspelt field stops with the variant's name."""
     levers = _script("levers")
-    v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}}}')
-    assert v["base"] == (Config(), TrackConfig())
+    v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}},'
+                              ' "lens": {"lens": "bonn"}}')
+    assert v["base"] == (Config(), TrackConfig(), NO_LENS) and v["lens"][2] == LENSES["bonn"]
     assert v["tiles"][0] == Config(blocks=(2, 4, 2, 1)) and v["tiles"][1].window == 1
     with pytest.raises(SystemExit, match="tiles: .*blocks"):
         levers.parse_variants('{"tiles": {"config": {"blocks": [0, 4]}}}')
     with pytest.raises(SystemExit, match="slow: .*windw"):
         levers.parse_variants('{"slow": {"policy": {"windw": 2}}}')
+    assert levers.parse_variants('{"own": {"lens": "folder"}}')["own"][2] == "folder"
+    with pytest.raises(SystemExit, match="bent: lens must be"):
+        levers.parse_variants('{"bent": {"lens": [0.1, 0.2]}}')
 
 
 def test_perturbed_inputs_are_sub_grey_level_and_reproducible():

@@ -1,8 +1,10 @@
 """What a change to the default odometry would buy in time and cost in accuracy, on whole sequences.
 
 Each variant changes fields of ``Config`` (the estimator) and/or ``TrackConfig`` (the policy) from
-the default (``--variants`` JSON: name -> {"config": {...}, "policy": {...}}; the first is the
-baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
+the default, or reads the frames through a lens (``--variants`` JSON: name -> {"config": {...},
+"policy": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder"}, the lens as ``jaxvo run --lens``,
+"folder" the published one of each sequence's name: the frames undistorted as the reader would;
+the first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
 every variant runs ``Odometry`` over the whole sequence (frames decoded into memory first, one
 warm-up pass per variant to compile); the variants and OpenCV's RGB odometry over the same pairs
 are timed in turn, pass by pass, so that other processes on the machine weigh on all alike.
@@ -29,7 +31,9 @@ import numpy as np
 from experiments import common
 import jax  # noqa: E402
 
+from jaxvo.camera import Lens, lens_for_sequence  # noqa: E402
 from jaxvo.config import Config, TrackConfig  # noqa: E402
+from jaxvo.frame import undistort  # noqa: E402
 from jaxvo.tracking.odometry import Odometry  # noqa: E402
 
 DEFAULT_VARIANTS = json.dumps({
@@ -45,7 +49,8 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("sequences", nargs="*", help="TUM-layout sequence folders (default: data_root()/bonn/"
                                                  "rgbd_bonn_crowd and data_root()/tum/rgbd_dataset_freiburg2_desk)")
     ap.add_argument("--variants", default=DEFAULT_VARIANTS,
-                    help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}}; the '
+                    help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}, "lens": '
+                         '"folder", a preset or 5 numbers}; the '
                          "first is the baseline (default: %(default)s)")
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated PRNG seeds (default 0,1,2)")
     ap.add_argument("--max-frames", type=int, default=None, help="at most N frames per sequence")
@@ -57,19 +62,21 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 
 def parse_variants(text: str) -> dict:
-    """name -> (Config, TrackConfig); a misspelt field or a bad value stops with the variant's name."""
-    raw = common.json_variants(text, '{"config": ..., "policy": ...}')
+    """name -> (Config, TrackConfig, Lens); a misspelt field or a bad value stops with the variant's name."""
+    raw = common.json_variants(text, '{"config": ..., "policy": ..., "lens": ...}')
     out = {}
     for name, spec in raw.items():
-        if not isinstance(spec, dict) or set(spec) - {"config", "policy"}:
-            raise SystemExit(f"--variants: {name}: expected keys 'config' and/or 'policy'")
+        if not isinstance(spec, dict) or set(spec) - {"config", "policy", "lens"}:
+            raise SystemExit(f"--variants: {name}: expected keys 'config', 'policy' and/or 'lens'")
         try:
             config = Config.from_dict(common.config_changes(json.dumps(spec.get("config", {}))))
             policy = TrackConfig(**spec.get("policy", {}))
             policy.validate()
+            lens = spec.get("lens", "none")
+            lens = lens if lens == "folder" else Lens.parse(lens)
         except (TypeError, ValueError) as e:
             raise SystemExit(f"--variants: {name}: {e}")
-        out[name] = (config, policy)
+        out[name] = (config, policy, lens)
     return out
 
 
@@ -103,14 +110,20 @@ def main(argv=None):
         times = {name: [] for name in variants}
         cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
         results = {name: [] for name in variants}
-        for name, (config, policy) in variants.items():   # warm-up: compile each variant
-            run_pass(seq, frames[:3], config, policy, jax.random.key(seeds[0]))
+        def lens_of(name):
+            lens = variants[name][2]
+            return lens_for_sequence(seq.name) if lens == "folder" else lens
+        # each lens's frames as the reader gives them (undistorted after decoding, before any noise)
+        seen = {lens: [undistort(f, seq.camera, lens) for f in frames] for lens in {lens_of(n) for n in variants}}
+        for name, (config, policy, _) in variants.items():   # warm-up: compile each variant
+            lens = lens_of(name)
+            run_pass(seq, seen[lens][:3], config, policy, jax.random.key(seeds[0]))
         for run, (seed, draw) in enumerate((s, d) for d in range(args.perturb) for s in seeds):
-            inputs = common.perturbed(frames, draw)
+            inputs = {lens: common.perturbed(fr, draw) for lens, fr in seen.items()}
             order = list(variants) if run % 2 == 0 else list(variants)[::-1]
             for name in order:
-                config, policy = variants[name]
-                secs, rel, n_est, held = run_pass(seq, inputs, config, policy, jax.random.key(seed))
+                config, policy, _ = variants[name]
+                secs, rel, n_est, held = run_pass(seq, inputs[lens_of(name)], config, policy, jax.random.key(seed))
                 times[name].append(secs)
                 results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
                 common.log(f"  seed {seed} input {draw} {name}: {secs.mean() * 1000:.1f} ms/frame, "
