@@ -116,7 +116,7 @@ def test_readme_commands_exist():
 
 def test_results_links_resolve():
     """Every experiments/results/<script>/<file> that the README or docs/results.md links exists, and
-    <script> is an experiments script (one folder of results per script)."""
+    <script> is an experiments script or diagnostic (one folder of results per script)."""
     for doc in (README, ROOT / "docs" / "results.md"):
         for script in re.findall(r"python (experiments/[\w/]+\.py)", doc.read_text()):
             assert (ROOT / script).is_file(), (doc.name, script)
@@ -125,7 +125,9 @@ def test_results_links_resolve():
     for doc in (README, ROOT / "docs" / "results.md"):
         for rel in re.findall(r"experiments/results/([\w-]+)/([\w.-]+\.(?:md|png|json))", doc.read_text()):
             script, name = rel
-            assert (ROOT / "experiments" / f"{script}.py").is_file(), (doc.name, script)
+            # a script of experiments/ or of its diagnostics (python -m experiments.diagnostics.<script>)
+            assert any((ROOT / "experiments" / sub / f"{script}.py").is_file() for sub in ("", "diagnostics")), \
+                (doc.name, script)
             assert (ROOT / "experiments" / "results" / script / name).is_file(), (doc.name, "/".join(rel))
 
 
