@@ -23,7 +23,8 @@ import numpy as np
 
 from jaxvo.validation import check_values, choice, number
 
-__all__ = ["Frame", "make_frame", "undistort", "luminance", "validate_pair", "validate_frame", "check_frame", "suggest_depth_scale",
+__all__ = ["Frame", "make_frame", "undistort", "luminance", "validate_pair", "validate_frame", "check_frame",
+           "suggest_depth_scale",
            "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
 #: where a median valid depth (metres) is taken as plausible for an RGB-D camera

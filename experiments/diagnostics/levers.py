@@ -12,8 +12,9 @@ Reported per variant and sequence: mean and median ms per frame, the ratio of th
 OpenCV's mean, estimates per frame, ATE and RPE over 1 s (mean and range over the seeds), held
 frames. ``--perturb K`` runs each seed on K inputs: the frames as read and K - 1 draws of
 sub-grey-level luminance noise (:func:`experiments.common.perturbed`), since a result on the Bonn
-excerpt moves with such changes more than with the seed. The speed benchmark (``experiments/speed.py``) says where the default's time goes; this
-script measures what a lever found there would change.
+excerpt moves with such changes more than with the seed. The speed benchmark
+(``experiments/speed.py``) says where the default's time goes; this script measures what a lever
+found there would change.
 
 Example::
 
@@ -146,7 +147,8 @@ def main(argv=None):
     lines = common.provenance_md("Levers on the default odometry: time and accuracy, whole sequences", __file__, argv)
     lines += [f"Variants (fields changed from `Config()` / `TrackConfig()`): `{args.variants}`. Seeds "
               f"{args.seeds}, each on {args.perturb} input(s) (the frames as read"
-              f"{', then draws of +-0.25 grey-level luminance noise' if args.perturb > 1 else ''}). Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
+              f"{', then draws of +-0.25 grey-level luminance noise' if args.perturb > 1 else ''}). "
+              "Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
               "after a warm-up; `/ OpenCV`: the mean against OpenCV rgb's mean over the same pairs, timed "
               "between the passes. `estimates`: `estimate_motion` calls per frame. ATE, RPE 1 s: mean over the "
               "runs (seeds x inputs) [range].", ""]
