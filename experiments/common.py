@@ -146,8 +146,8 @@ def find_named(name: str) -> Optional[Path]:
         return None
 
 
-def open_sequence(path, max_frames: Optional[int] = None, start: int = 0) -> datasets.TumSequence:
-    return datasets.TumSequence(path, max_frames=max_frames, start=start)
+def open_sequence(path, max_frames: Optional[int] = None, start: int = 0, depth_scale=None) -> datasets.TumSequence:
+    return datasets.TumSequence(path, max_frames=max_frames, start=start, depth_scale=depth_scale)
 
 
 def load_frames(seq: datasets.TumSequence, indices: Optional[Iterable[int]] = None) -> list:

@@ -26,7 +26,8 @@ from jaxvo.validation import check_fields, integer, real
 
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
-    "Lens", "NO_LENS", "LENSES", "camera_for_sequence", "lens_for_sequence", "undistortion_map", "camera_for_size",
+    "Lens", "NO_LENS", "LENSES", "DEPTH_CORRECTIONS", "camera_for_sequence", "lens_for_sequence",
+    "depth_correction_for_sequence", "undistortion_map", "camera_for_size",
     "backproject", "backproject_planes", "project",
 ]
 
@@ -153,10 +154,15 @@ LENSES = {"fr1": Lens(0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
           "fr2": Lens(0.231222, -0.784899, -0.003257, -0.000105, 0.917205),
           "fr3": NO_LENS, "bonn": Lens(0.039903, -0.099343, -0.000730, -0.000144, 0.0), "default": NO_LENS}
 
+#: Published depth correction ``ds`` of each sensor, from the same calibration as the lenses: the
+#: depth PNGs of TUM fr1 and fr2 read ``ds`` times too far at 1/5000 m, so that PNG value / (5000 ds)
+#: is metres (the readers' ``depth_scale="fr2"``). fr3, Bonn and any other sensor: 1, none published.
+DEPTH_CORRECTIONS = {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "bonn": 1.0, "default": 1.0}
+
 
 def _preset_name(name: str) -> str:
-    """The key of :data:`PRESETS` / :data:`LENSES` for a sequence folder name (``freiburg1/2/3``,
-    ``rgbd_bonn_*``), else "default"."""
+    """The key of :data:`PRESETS` / :data:`LENSES` / :data:`DEPTH_CORRECTIONS` for a sequence folder
+    name (``freiburg1/2/3``, ``rgbd_bonn_*``), else "default"."""
     n = str(name).lower()
     if "bonn" in n:
         return "bonn"
@@ -174,6 +180,11 @@ def camera_for_sequence(name: str) -> Camera:
 def lens_for_sequence(name: str) -> Lens:
     """The lens of the preset :func:`camera_for_sequence` picks (:data:`LENSES`)."""
     return LENSES[_preset_name(name)]
+
+
+def depth_correction_for_sequence(name: str) -> float:
+    """The depth correction of the preset :func:`camera_for_sequence` picks (:data:`DEPTH_CORRECTIONS`)."""
+    return DEPTH_CORRECTIONS[_preset_name(name)]
 
 
 def undistortion_map(camera: Camera, lens: Lens) -> Tuple[np.ndarray, np.ndarray]:

@@ -302,7 +302,7 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
     levers = _script("levers")
     v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}},'
                               ' "lens": {"lens": "bonn"}}')
-    assert v["base"] == (Config(), TrackConfig(), NO_LENS) and v["lens"][2] == LENSES["bonn"]
+    assert v["base"] == (Config(), TrackConfig(), NO_LENS, None) and v["lens"][2] == LENSES["bonn"]
     assert v["tiles"][0] == Config(blocks=(2, 4, 2, 1)) and v["tiles"][1].window == 1
     with pytest.raises(SystemExit, match="tiles: .*blocks"):
         levers.parse_variants('{"tiles": {"config": {"blocks": [0, 4]}}}')
@@ -311,6 +311,11 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
     assert levers.parse_variants('{"own": {"lens": "folder"}}')["own"][2] == "folder"
     with pytest.raises(SystemExit, match="bent: lens must be"):
         levers.parse_variants('{"bent": {"lens": [0.1, 0.2]}}')
+    assert [levers.parse_variants(f'{{"d": {{"depth_scale": {s}}}}}')["d"][3] for s in ('"folder"', '"fr2"', 5155)] \
+        == ["folder", "fr2", 5155]
+    for bad in ('"fr9"', "-1"):
+        with pytest.raises(SystemExit, match="far: .*depth_scale must be"):
+            levers.parse_variants(f'{{"far": {{"depth_scale": {bad}}}}}')
 
 
 def test_perturbed_inputs_are_sub_grey_level_and_reproducible():

@@ -1,10 +1,11 @@
 """What a change to the default odometry would buy in time and cost in accuracy, on whole sequences.
 
 Each variant changes fields of ``Config`` (the estimator) and/or ``TrackConfig`` (the policy) from
-the default, or reads the frames through a lens (``--variants`` JSON: name -> {"config": {...},
-"policy": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder"}, the lens as ``jaxvo run --lens``,
-"folder" the published one of each sequence's name: the frames undistorted as the reader would;
-the first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
+the default, or reads the frames through a lens or with another depth scale (``--variants`` JSON:
+name -> {"config": {...}, "policy": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder",
+"depth_scale": 5155, "fr2" or "folder"}, the lens as ``jaxvo run --lens``, the depth scale as
+``jaxvo run --depth-scale``, "folder" the published one of each sequence's name: the frames as the
+reader gives them; the first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
 every variant runs ``Odometry`` over the whole sequence (frames decoded into memory first, one
 warm-up pass per variant to compile); the variants and OpenCV's RGB odometry over the same pairs
 are timed in turn, pass by pass, so that other processes on the machine weigh on all alike.
@@ -32,8 +33,9 @@ import numpy as np
 from experiments import common
 import jax  # noqa: E402
 
-from jaxvo.camera import Lens, lens_for_sequence  # noqa: E402
+from jaxvo.camera import Lens, _preset_name, lens_for_sequence  # noqa: E402
 from jaxvo.config import Config, TrackConfig  # noqa: E402
+from jaxvo.data.calibration import resolve_depth_scale  # noqa: E402
 from jaxvo.frame import undistort  # noqa: E402
 from jaxvo.tracking.odometry import Odometry  # noqa: E402
 
@@ -51,7 +53,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
                                                  "rgbd_bonn_crowd and data_root()/tum/rgbd_dataset_freiburg2_desk)")
     ap.add_argument("--variants", default=DEFAULT_VARIANTS,
                     help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}, "lens": '
-                         '"folder", a preset or 5 numbers}; the '
+                         '"folder", a preset or 5 numbers, "depth_scale": a number, a sensor or "folder"}; the '
                          "first is the baseline (default: %(default)s)")
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated PRNG seeds (default 0,1,2)")
     ap.add_argument("--max-frames", type=int, default=None, help="at most N frames per sequence")
@@ -63,21 +65,27 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 
 def parse_variants(text: str) -> dict:
-    """name -> (Config, TrackConfig, Lens); a misspelt field or a bad value stops with the variant's name."""
-    raw = common.json_variants(text, '{"config": ..., "policy": ..., "lens": ...}')
+    """name -> (Config, TrackConfig, Lens or "folder", depth scale: None, a number, a sensor or
+    "folder"); a misspelt field or a bad value stops with the variant's name."""
+    raw = common.json_variants(text, '{"config": ..., "policy": ..., "lens": ..., "depth_scale": ...}')
     out = {}
     for name, spec in raw.items():
-        if not isinstance(spec, dict) or set(spec) - {"config", "policy", "lens"}:
-            raise SystemExit(f"--variants: {name}: expected keys 'config', 'policy' and/or 'lens'")
+        if not isinstance(spec, dict) or set(spec) - {"config", "policy", "lens", "depth_scale"}:
+            raise SystemExit(f"--variants: {name}: expected keys 'config', 'policy', 'lens' and/or 'depth_scale'")
         try:
             config = Config.from_dict(common.config_changes(json.dumps(spec.get("config", {}))))
             policy = TrackConfig(**spec.get("policy", {}))
             policy.validate()
             lens = spec.get("lens", "none")
             lens = lens if lens == "folder" else Lens.parse(lens)
+            scale = spec.get("depth_scale")
+            if scale != "folder":
+                resolve_depth_scale(scale, 1.0)
+                if scale is not None and not (isinstance(scale, str) or float(scale) > 0):
+                    raise ValueError(f"depth_scale must be a number > 0, a sensor or 'folder', got {scale!r}")
         except (TypeError, ValueError) as e:
             raise SystemExit(f"--variants: {name}: {e}")
-        out[name] = (config, policy, lens)
+        out[name] = (config, policy, lens, scale)
     return out
 
 
@@ -111,20 +119,26 @@ def main(argv=None):
         times = {name: [] for name in variants}
         cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
         results = {name: [] for name in variants}
-        def lens_of(name):
-            lens = variants[name][2]
-            return lens_for_sequence(seq.name) if lens == "folder" else lens
-        # each lens's frames as the reader gives them (undistorted after decoding, before any noise)
-        seen = {lens: [undistort(f, seq.camera, lens) for f in frames] for lens in {lens_of(n) for n in variants}}
-        for name, (config, policy, _) in variants.items():   # warm-up: compile each variant
-            lens = lens_of(name)
-            run_pass(seq, seen[lens][:3], config, policy, jax.random.key(seeds[0]))
+        def reading(name):
+            """(lens, depth scale) the variant reads the sequence with, "folder" resolved."""
+            lens, scale = variants[name][2:]
+            return (lens_for_sequence(seq.name) if lens == "folder" else lens,
+                    _preset_name(seq.name) if scale == "folder" else scale)
+
+        def frames_read(scale):
+            return frames if scale is None else common.load_frames(
+                common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale))
+        # each reading's frames as the reader gives them (undistorted after decoding, before any noise)
+        seen = {(lens, scale): [undistort(f, seq.camera, lens) for f in frames_read(scale)]
+                for lens, scale in {reading(n) for n in variants}}
+        for name, (config, policy, *_) in variants.items():   # warm-up: compile each variant
+            run_pass(seq, seen[reading(name)][:3], config, policy, jax.random.key(seeds[0]))
         for run, (seed, draw) in enumerate((s, d) for d in range(args.perturb) for s in seeds):
-            inputs = {lens: common.perturbed(fr, draw) for lens, fr in seen.items()}
+            inputs = {how: common.perturbed(fr, draw) for how, fr in seen.items()}
             order = list(variants) if run % 2 == 0 else list(variants)[::-1]
             for name in order:
-                config, policy, _ = variants[name]
-                secs, rel, n_est, held = run_pass(seq, inputs[lens_of(name)], config, policy, jax.random.key(seed))
+                config, policy, *_ = variants[name]
+                secs, rel, n_est, held = run_pass(seq, inputs[reading(name)], config, policy, jax.random.key(seed))
                 times[name].append(secs)
                 results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
                 common.log(f"  seed {seed} input {draw} {name}: {secs.mean() * 1000:.1f} ms/frame, "

@@ -26,7 +26,9 @@ to camera poses). EST is a TUM trajectory file (e.g. from jaxvo run).
 Prints a table of the relative pose error for pairs of estimate frames DELTA apart
 (translation in m, rotation in deg; per second with --delta-unit s, per frame with f;
 rmse, mean, median, max and the number of pairs) and the absolute trajectory error (m,
-after the least-squares rigid alignment of the estimate to the ground truth). With --delta
+after the least-squares rigid alignment of the estimate to the ground truth), then the scale
+of the least-squares similarity alignment: 1 for a metric trajectory, and a few per cent off
+where the recording's depth reads too far or too near (see jaxvo run --depth-scale). With --delta
 and --delta-unit left at their defaults, an estimate shorter than 1 s is measured over 1
 frame instead, with a note (as jaxvo run does). Poses are
 associated by timestamp (nearest, within --max-dt s); ground truth that does not cover the
@@ -83,6 +85,7 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
         nd = 3 if "deg" in name else 4
         lines.append(f"{name:<20}{fmt(s.rmse, nd):>10}{fmt(s.mean, nd):>10}{fmt(s.median, nd):>10}"
                      f"{fmt(s.max, nd):>10}{s.n:>7}")
+    lines.append(f"scale {fmt(a.scale, 4)} (similarity alignment; 1 for a metric trajectory)")
     if m is not None:
         lines += ["", f"outlier mask vs true moving pixels ({res.mask_frames} frames): precision "
                       f"{fmt(m.precision, 3)}, recall {fmt(m.recall, 3)}, IoU {fmt(m.iou_outlier, 3)}"]

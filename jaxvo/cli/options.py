@@ -97,6 +97,30 @@ def size_option(ctx, param, value):
         raise click.BadParameter(str(e).split(": ", 1)[-1]) from None
 
 
+def depth_scale_option(ctx, param, value):
+    """Click callback of --depth-scale: a number > 0, or the name of a sensor with a published depth
+    correction (:data:`jaxvo.camera.DEPTH_CORRECTIONS`, resolved by the reader against the layout's
+    scale); None stays None; anything else a usage error."""
+    if value is None:
+        return None
+    from jaxvo.camera import DEPTH_CORRECTIONS
+    if value.strip() in DEPTH_CORRECTIONS:
+        return value.strip()
+    try:
+        number = float(value)
+    except ValueError:
+        number = None
+    if number is None or not number > 0 or number == float("inf"):
+        raise click.BadParameter(f"must be a number > 0 or a sensor with a published depth correction "
+                                 f"({', '.join(sorted(DEPTH_CORRECTIONS))}), got {value!r}")
+    return number
+
+
+DEPTH_SCALE_HELP = ("Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
+                    "millimetres (Open3D, RealSense, Redwood); or a sensor whose published depth correction to "
+                    "apply to the layout's: fr1 (5000 x 1.035), fr2 (5000 x 1.031). [default: the layout's]")
+
+
 def lens_option(ctx, param, value):
     """Click callback of --lens: :meth:`jaxvo.camera.Lens.parse` of the text (None stays None), or a
     usage error."""
@@ -115,8 +139,8 @@ def sequence_with_trajectory(f):
         click.option("--camera", "camera_preset", type=click.Choice(sorted(PRESETS)), default=None,
                      help="Intrinsics preset. [default: as for 'jaxvo run': the folder's calibration file, else "
                           "from the folder name]"),
-        click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
-                     help="Depth PNG value / depth-scale = metres. [default: the layout's, 5000 for TUM]"),
+        click.option("--depth-scale", default=None, callback=depth_scale_option, metavar="SCALE",
+                     help=DEPTH_SCALE_HELP),
         click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
                      help="Maximum frame/trajectory (and colour/depth) timestamp difference, seconds."),
         click.option("--no-progress", is_flag=True, help="No progress bar.")]

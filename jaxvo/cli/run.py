@@ -8,7 +8,8 @@ import click
 import numpy as np
 
 from jaxvo.camera import PRESETS
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, SEED, compilation_cache, compile_note, device, lens_option
+from jaxvo.cli.options import (CONVENTIONS, DEPTH_SCALE_HELP, FORCE, POSITIVE, SEED, compilation_cache, compile_note,
+                               depth_scale_option, device, lens_option)
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
@@ -47,7 +48,8 @@ more than half of the pairs failed produced nothing usable (a wrong --depth-scal
 hide every pixel): after the summary one error line names the likely cause, the trajectory is
 kept, and the exit code is 2. With groundtruth.txt it also prints
 RPE with a delta of 1 frame (m/frame, deg/frame) and of 1 s when the run is long enough
-(m/s, deg/s), and ATE (m, after alignment).
+(m/s, deg/s), and ATE (m, after alignment) with the scale of the similarity alignment (1 for a
+metric trajectory; a few per cent off where the depth reads too far or too near: --depth-scale).
 
 Pairs i -> i+1 use the random key jax.random.fold_in(jax.random.key(SEED), i), exactly as
 jaxvo.tracking.odometry.track does, so the CLI and the library give identical trajectories.
@@ -101,9 +103,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
                    "camera_intrinsic.json (Open3D) or info.json (jaxvo), else from the folder name: "
                    "freiburg1/2/3 -> fr1/fr2/fr3, rgbd_bonn_* -> bonn, otherwise default (525, 525, 319.5, 239.5), "
                    "scaled to the image size]")
-@click.option("--depth-scale", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
-                   "millimetres (Open3D, RealSense, Redwood). [default: the layout's]")
+@click.option("--depth-scale", default=None, callback=depth_scale_option, metavar="SCALE", help=DEPTH_SCALE_HELP)
 @click.option("--mask-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder of user masks, one 8-bit PNG per colour frame named like the colour image (or "
                    "<timestamp>.png): nonzero = the pixel may be used, 0 = ignore it (e.g. a person detector's "
@@ -299,7 +299,7 @@ def _print_run_summary(run):
                              f"{r.rot_drift.rmse:.3f} deg/{u} ({r.n} pairs)")
         a = errs.ate
         if a is not None:
-            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames)")
+            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), scale {fmt(a.scale, 3)}")
     click.echo("\n".join(lines))
 
 

@@ -4,7 +4,8 @@ Intrinsics, unless given: the layout's calibration file (``calibration.txt``,
 ``camera_intrinsic.json``, jaxvo's ``info.json``), else the preset for the folder name
 (:func:`jaxvo.camera.camera_for_sequence`), scaled to the images' size when they are not
 640x480 (see :func:`sequence_camera`). The first frame read is checked for a plausible depth
-scale (:func:`check_depth_scale`).
+scale (:func:`check_depth_scale`). A depth scale may name a sensor instead of a number: the
+layout's scale with that sensor's published depth correction (:func:`resolve_depth_scale`).
 """
 from __future__ import annotations
 
@@ -13,13 +14,28 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from jaxvo.camera import Camera, camera_for_sequence, camera_for_size
+from jaxvo.camera import DEPTH_CORRECTIONS, Camera, camera_for_sequence, camera_for_size
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.textfiles import _data_lines
 from jaxvo.frame import PLAUSIBLE_DEPTH, suggest_depth_scale
 
-__all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "PLAUSIBLE_DEPTH",
+__all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "resolve_depth_scale", "PLAUSIBLE_DEPTH",
            "DEFAULT_SCALE_MIN_MEDIAN"]
+
+
+def resolve_depth_scale(value, layout_scale: float):
+    """A reader's ``depth_scale`` as a number: ``value`` itself (a number, or None for the layout's),
+    or, for a sensor name of :data:`jaxvo.camera.DEPTH_CORRECTIONS` (``"fr2"``), ``layout_scale``
+    times its published correction (5000 x 1.031 = 5155 for TUM fr2: PNG value / 5155 = metres).
+    ValueError (one line) for any other text."""
+    if not isinstance(value, str):
+        return value
+    name = value.strip()
+    if name not in DEPTH_CORRECTIONS:
+        raise ValueError(f"open_sequence: depth_scale must be a number > 0, a sensor with a published depth "
+                         f"correction ({', '.join(sorted(DEPTH_CORRECTIONS))}), or None (the layout's scale), "
+                         f"got {value!r}")
+    return float(layout_scale) * DEPTH_CORRECTIONS[name]
 
 
 def read_calibration(seq_dir) -> Optional[Tuple[Camera, str]]:

@@ -12,9 +12,10 @@ from __future__ import annotations
 import inspect
 import os
 from pathlib import Path
-from typing import List, Optional
+from typing import List, Optional, Union
 
 from jaxvo.camera import Camera
+from jaxvo.data.calibration import resolve_depth_scale
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.icl_nuim import IclNuimSequence
 from jaxvo.data.redwood import RedwoodSequence
@@ -79,11 +80,13 @@ def find_sequence(name: str, root=None) -> Path:
     raise DatasetError(f"{root}: no sequence folder named {name!r} (with rgb.txt and depth.txt) found")
 
 
-def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[float] = None, **kwargs) -> TumSequence:
+def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Union[float, str, None] = None,
+                  **kwargs) -> TumSequence:
     """Open an RGB-D sequence folder with the reader its content calls for: ``rgb.txt`` + ``depth.txt``
     (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
     :class:`IclNuimSequence`; ``color/`` (or ``image/``) + ``depth/`` folders (Redwood) ->
-    :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's) and ``kwargs``
+    :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's; a sensor name such as
+    ``"fr2"``: the layout's with its published depth correction) and ``kwargs``
     (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else,
     and ValueError naming the option and what it may hold for an option of a wrong type or value
     (e.g. ``max_frames="10"``).
@@ -92,7 +95,8 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Optional[f
     the frames a to b - 1, and iterating yields ``(timestamp, Frame)`` pairs (``track`` takes the
     frames: ``(f for _, f in seq)``).
     """
-    check_reader_options(path, depth_scale=depth_scale)
+    # a sensor's name is resolved against the layout's scale by the reader
+    check_reader_options(path, depth_scale=resolve_depth_scale(depth_scale, 1.0))
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: sequence folder does not exist")

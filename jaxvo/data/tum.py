@@ -19,12 +19,12 @@ import concurrent.futures
 import copy
 import os
 from pathlib import Path
-from typing import Iterator, Optional, Tuple
+from typing import Iterator, Optional, Tuple, Union
 
 import numpy as np
 
 from jaxvo.camera import NO_LENS, Camera, Lens
-from jaxvo.data.calibration import check_depth_scale, sequence_camera
+from jaxvo.data.calibration import check_depth_scale, resolve_depth_scale, sequence_camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
 from jaxvo.data.masks import match_masks, read_frame_mask
@@ -71,7 +71,9 @@ class TumSequence:
         nearest first, as TUM's associate.py). Also the tolerance of the ground-truth
         coverage check.
       depth_scale: depth PNG value / depth_scale = metres; None = the layout's (5000 for TUM,
-        Bonn, ETH3D and ICL-NUIM; 1000, millimetres, for Redwood).
+        Bonn, ETH3D and ICL-NUIM; 1000, millimetres, for Redwood); a sensor name of
+        :data:`jaxvo.camera.DEPTH_CORRECTIONS` (``"fr2"``): the layout's times that sensor's
+        published depth correction (:func:`jaxvo.data.calibration.resolve_depth_scale`).
       start: index of the first associated frame to use.
       max_frames: use at most this many frames (None = all).
       bonn: treat ground truth as Bonn marker poses and convert it to camera poses;
@@ -97,8 +99,9 @@ class TumSequence:
     LAYOUT = "TUM RGB-D"
 
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
-                 depth_scale: Optional[float] = None, start: int = 0, max_frames: Optional[int] = None,
+                 depth_scale: Union[float, str, None] = None, start: int = 0, max_frames: Optional[int] = None,
                  bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens=None):
+        depth_scale = resolve_depth_scale(depth_scale, self.DEPTH_SCALE)
         check_reader_options(path, max_dt=max_dt, depth_scale=depth_scale, start=start, max_frames=max_frames,
                              bonn=bonn, gt_slack=gt_slack)
         if mask_dir is not None and not isinstance(mask_dir, (str, os.PathLike)):

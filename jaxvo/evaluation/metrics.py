@@ -209,7 +209,10 @@ class ATEResult:
     timestamps; ``gt_index`` / ``est_index`` (M,) the association. ``T_gt_est`` (4, 4):
     the alignment (maps estimate world into ground-truth world). ``aligned`` (N, 4, 4):
     the whole (time-sorted) estimate mapped by ``T_gt_est`` (T_world_cam in gt world);
-    ``est_stamps`` (N,) its timestamps.
+    ``est_stamps`` (N,) its timestamps. ``scale``: the scale s of the least-squares similarity
+    alignment of the same positions (gt ~ s R est + t, Umeyama; reported, not applied): 1 for a
+    metric trajectory; an RGB-D trajectory whose depth reads a factor k too far comes out about
+    k times too long (s about 1 / k).
     """
     stats: Stats
     errors: np.ndarray
@@ -219,6 +222,7 @@ class ATEResult:
     T_gt_est: np.ndarray
     aligned: np.ndarray
     est_stamps: np.ndarray
+    scale: float
 
     @property
     def rmse(self) -> float:
@@ -226,7 +230,7 @@ class ATEResult:
 
     def to_dict(self, per_frame: bool = False) -> dict:
         d = {"trans_m": self.stats.to_dict(), "pairs": self.stats.n,
-             "T_gt_est": self.T_gt_est.tolist()}
+             "T_gt_est": self.T_gt_est.tolist(), "scale": _clean(self.scale)}
         if per_frame:
             d["per_frame"] = {"stamp": self.stamps.tolist(), "trans_m": self.errors.tolist()}
         return d
@@ -270,12 +274,13 @@ def ate(gt_stamps, gt_poses, est_stamps, est_poses, max_dt: float = 0.02) -> ATE
         raise ValueError(f"ate: only {ie.size} estimate frame(s) have ground truth within {max_dt} s "
                          f"(estimate {es[0]:.3f} .. {es[-1]:.3f}, ground truth {gs[0]:.3f} .. {gs[-1]:.3f})")
     R, t, _ = align_umeyama(eP[ie, :3, 3], gP[ig, :3, 3])
+    scale = align_umeyama(eP[ie, :3, 3], gP[ig, :3, 3], with_scale=True)[2]
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = R, t
     aligned = A @ eP
     err = np.linalg.norm(aligned[ie, :3, 3] - gP[ig, :3, 3], axis=-1)
     return ATEResult(stats=summarize(err), errors=err, stamps=es[ie], gt_index=ig, est_index=ie,
-                     T_gt_est=A, aligned=aligned, est_stamps=es)
+                     T_gt_est=A, aligned=aligned, est_stamps=es, scale=scale)
 
 
 # ----------------------------------------------------------------------------- masks

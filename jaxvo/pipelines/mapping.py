@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Callable, Dict, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, Dict, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -456,7 +456,7 @@ class MapRun:
 def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 0.01, method: str = "ransac",
                  max_frames: Optional[int] = None, max_depth: float = 4.0, preview=None,
                  labels: Optional[str] = "hindsight", seed: int = 0, camera_preset: Optional[str] = None,
-                 depth_scale: Optional[float] = None, max_dt: float = 0.02, force: bool = False,
+                 depth_scale: Union[float, str, None] = None, max_dt: float = 0.02, force: bool = False,
                  on_start: Optional[Callable] = None,
                  progress: Optional[Callable[[int, int], None]] = None) -> MapRun:
     """``jaxvo map``: the map of a sequence folder from a trajectory file, as a PLY file.

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
@@ -38,7 +38,7 @@ class MasksRun:
 
 def write_hindsight_masks(sequence_dir, traj, out_dir, *, offsets: Sequence[int], params=None, config=None,
                           max_frames: Optional[int] = None, camera_preset: Optional[str] = None,
-                          depth_scale: Optional[float] = None, max_dt: float = 0.02, force: bool = False,
+                          depth_scale: Union[float, str, None] = None, max_dt: float = 0.02, force: bool = False,
                           on_start: Optional[Callable] = None, on_mask: Optional[Callable] = None) -> MasksRun:
     """``jaxvo masks``: hindsight masks of a sequence folder from a trajectory file, into ``out_dir``.
 

@@ -25,7 +25,7 @@ import functools
 import json
 import time
 from pathlib import Path
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -450,7 +450,8 @@ def expand_sequences(paths) -> List[Path]:
 @dataclasses.dataclass(frozen=True)
 class ReaderOptions:
     """How :func:`load_sequence` opens a folder: an intrinsics preset name and single values
-    (pixels), depth scale (PNG value / scale = metres; None = the layout's), max_dt (largest
+    (pixels), depth scale (PNG value / scale = metres; None = the layout's; a sensor name such as "fr2":
+    the layout's with that sensor's published depth correction), max_dt (largest
     colour/depth and estimate/ground-truth stamp difference, s), the first frame, the number of
     frames (None = all) and a folder of user masks."""
     camera_preset: Optional[str] = None
@@ -458,7 +459,7 @@ class ReaderOptions:
     fy: Optional[float] = None
     cx: Optional[float] = None
     cy: Optional[float] = None
-    depth_scale: Optional[float] = None
+    depth_scale: Union[float, str, None] = None
     max_dt: float = 0.02
     start: int = 0
     max_frames: Optional[int] = None

@@ -10,7 +10,8 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.frame import undistort
-from jaxvo.camera import BONN, DEFAULT, LENSES, NO_LENS, TUM_FR2, Camera, camera_for_size, lens_for_sequence
+from jaxvo.camera import (BONN, DEFAULT, DEPTH_CORRECTIONS, LENSES, NO_LENS, TUM_FR2, Camera, camera_for_size,
+                          depth_correction_for_sequence, lens_for_sequence)
 from jaxvo.data import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                         data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
                         read_pose_file)
@@ -120,6 +121,22 @@ def test_real_sequence_undistorted_with_its_published_lens():
     f, g = s.frame(0), plain.frame(0)
     np.testing.assert_array_equal(f.intensity, undistort(g, s.camera, LENSES["fr2"]).intensity)
     assert not np.array_equal(f.depth, g.depth) and f.depth[0, 0] == 0
+
+
+def test_a_sensor_name_as_depth_scale_applies_its_published_correction(tmp_path):
+    """depth_scale="fr2": the layout's 5000 times TUM's fr2 correction 1.031, so every depth is the
+    PNG value / 5155 m (read independently with OpenCV); a sensor without a published correction
+    reads as the layout's scale; any other name is one ValueError naming the choices."""
+    d = make_seq(tmp_path, name="rgbd_dataset_freiburg2_fake", n=2)
+    assert depth_correction_for_sequence(d.name) == DEPTH_CORRECTIONS["fr2"] == 1.031
+    s = TumSequence(d, camera=SMALL, depth_scale="fr2")
+    assert s.depth_scale == 5000 * 1.031
+    raw = cv2.imread(str(s.depth_paths[0]), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16 and raw.any()
+    np.testing.assert_array_equal(s.frame(0).depth, (raw / 5155.0).astype(np.float32))
+    assert TumSequence(d, camera=SMALL, depth_scale="bonn").depth_scale == TumSequence(d, camera=SMALL).depth_scale
+    with pytest.raises(ValueError, match=r"depth_scale must be a number > 0, a sensor .*fr1, fr2.*'fr9'"):
+        TumSequence(d, camera=SMALL, depth_scale="fr9")
 
 
 def test_camera_size_mismatch_is_reported(tmp_path):
@@ -502,7 +519,8 @@ def test_real_bonn_relative_motion_matches_images():
     ({"max_frames": "10"}, r"^open_sequence: max_frames must be an integer >= 1, or None \(all frames\), got '10'$"),
     ({"max_frames": 2.0}, r"max_frames must be an integer >= 1, or None \(all frames\), got 2\.0"),
     ({"max_frames": 0}, r"max_frames must be an integer >= 1"),
-    ({"depth_scale": "5000"}, r"^open_sequence: depth_scale must be a number > 0, or None \(the layout's scale\), got '5000'$"),
+    ({"depth_scale": "5000"}, r"^open_sequence: depth_scale must be a number > 0, a sensor with a published depth "
+                              r"correction \(bonn, default, fr1, fr2, fr3\), or None \(the layout's scale\), got '5000'$"),
     ({"depth_scale": -1.0}, r"depth_scale must be a number > 0"),
     ({"start": "2"}, r"^open_sequence: start must be an integer >= 0, got '2'$"),
     ({"start": 1.5}, r"start must be an integer >= 0, got 1\.5"),

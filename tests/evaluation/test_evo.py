@@ -2,6 +2,8 @@
 `jaxvo gt` writes (Bonn marker poses converted to camera poses) and evo's --t_max_diff 0.02."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -49,6 +51,8 @@ def test_ate_and_frame_rpe_match_evo(bonn_crowd, tmp_path):
     np.testing.assert_allclose(rpe(metrics.PoseRelation.translation_part), ours.rpe.trans_stats.rmse, rtol=1e-5)
     np.testing.assert_allclose(rpe(metrics.PoseRelation.rotation_angle_deg), ours.rpe.rot_stats.rmse,
                                rtol=1e-4, atol=1e-6)
+    scaled = copy.deepcopy(traj)
+    assert scaled.align(ref, correct_scale=True)[2] == pytest.approx(ours.ate.scale, rel=1e-6)
     traj.align(ref, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, traj))

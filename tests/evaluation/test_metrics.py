@@ -104,6 +104,21 @@ def test_ate_zero_for_rigidly_moved_copy():
     assert np.allclose(r.T_gt_est, G.inverse(A), atol=1e-9)
     assert np.allclose(r.aligned, Gt, atol=1e-9)
     assert json.loads(json.dumps(r.to_dict()))["trans_m"]["n"] == 31
+    assert r.scale == pytest.approx(1.0, abs=1e-9)
+
+
+def test_ate_scale_of_a_trajectory_too_long_by_a_factor():
+    """An estimate whose translations are all 1.05 times the truth (as from depth read 5 % too far),
+    in another world frame: the similarity scale is 1 / 1.05; the rigid ATE is not zero."""
+    rng = np.random.default_rng(1)
+    Gt = np.tile(np.eye(4), (40, 1, 1))
+    for k in range(1, 40):
+        Gt[k] = Gt[k - 1] @ G.exp(rng.normal(size=6) * 0.05)
+    Est = G.exp(np.array([0.3, -0.2, 0.9, 1.0, 2.0, -0.5])) @ Gt
+    Est[:, :3, 3] *= 1.05
+    r = ate(np.arange(40.0), Gt, np.arange(40.0), Est)
+    assert r.scale == pytest.approx(1 / 1.05, rel=1e-9)
+    assert r.stats.rmse > 1e-3 and json.loads(json.dumps(r.to_dict()))["scale"] == pytest.approx(1 / 1.05)
 
 
 def test_ate_known_value():
