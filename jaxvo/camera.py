@@ -27,7 +27,7 @@ from jaxvo.validation import check_fields, integer, real
 __all__ = [
     "Camera", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN", "DEFAULT", "PRESETS",
     "Lens", "NO_LENS", "LENSES", "DEPTH_CORRECTIONS", "camera_for_sequence", "lens_for_sequence",
-    "depth_correction_for_sequence", "undistortion_map", "camera_for_size",
+    "depth_correction_for_sequence", "preset_for_sequence", "undistortion_map", "camera_for_size",
     "backproject", "backproject_planes", "project",
 ]
 
@@ -160,7 +160,7 @@ LENSES = {"fr1": Lens(0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
 DEPTH_CORRECTIONS = {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "bonn": 1.0, "default": 1.0}
 
 
-def _preset_name(name: str) -> str:
+def preset_for_sequence(name: str) -> str:
     """The key of :data:`PRESETS` / :data:`LENSES` / :data:`DEPTH_CORRECTIONS` for a sequence folder
     name (``freiburg1/2/3``, ``rgbd_bonn_*``), else "default"."""
     n = str(name).lower()
@@ -174,17 +174,17 @@ def _preset_name(name: str) -> str:
 
 def camera_for_sequence(name: str) -> Camera:
     """Pick the preset from a sequence folder name (``freiburg1/2/3``, ``rgbd_bonn_*``), else DEFAULT."""
-    return PRESETS[_preset_name(name)]
+    return PRESETS[preset_for_sequence(name)]
 
 
 def lens_for_sequence(name: str) -> Lens:
     """The lens of the preset :func:`camera_for_sequence` picks (:data:`LENSES`)."""
-    return LENSES[_preset_name(name)]
+    return LENSES[preset_for_sequence(name)]
 
 
 def depth_correction_for_sequence(name: str) -> float:
     """The depth correction of the preset :func:`camera_for_sequence` picks (:data:`DEPTH_CORRECTIONS`)."""
-    return DEPTH_CORRECTIONS[_preset_name(name)]
+    return DEPTH_CORRECTIONS[preset_for_sequence(name)]
 
 
 def undistortion_map(camera: Camera, lens: Lens) -> Tuple[np.ndarray, np.ndarray]:

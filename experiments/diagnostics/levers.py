@@ -33,7 +33,7 @@ import numpy as np
 from experiments import common
 import jax  # noqa: E402
 
-from jaxvo.camera import Lens, _preset_name, lens_for_sequence  # noqa: E402
+from jaxvo.camera import Lens, preset_for_sequence, lens_for_sequence  # noqa: E402
 from jaxvo.config import Config, TrackConfig  # noqa: E402
 from jaxvo.data.calibration import resolve_depth_scale  # noqa: E402
 from jaxvo.frame import undistort  # noqa: E402
@@ -123,7 +123,7 @@ def main(argv=None):
             """(lens, depth scale) the variant reads the sequence with, "folder" resolved."""
             lens, scale = variants[name][2:]
             return (lens_for_sequence(seq.name) if lens == "folder" else lens,
-                    _preset_name(seq.name) if scale == "folder" else scale)
+                    preset_for_sequence(seq.name) if scale == "folder" else scale)
 
         def frames_read(scale):
             return frames if scale is None else common.load_frames(

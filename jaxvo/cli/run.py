@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from jaxvo.camera import PRESETS
+from jaxvo.camera import PRESETS, depth_correction_for_sequence, preset_for_sequence
 from jaxvo.cli.options import (CONVENTIONS, DEPTH_SCALE_HELP, FORCE, POSITIVE, SEED, compilation_cache, compile_note,
                                depth_scale_option, device, lens_option)
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
@@ -178,7 +178,8 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
         return
     seq, config = plan.sequences[0], setup.config
     click.echo(f"jaxvo run: {seq.name}, {len(seq)} frames, method {config.method}, {seq.camera!r} "
-               f"(from {seq.camera_source}){_lens_note(seq)}, depth scale {seq.depth_scale:g}, device {device()}",
+               f"(from {seq.camera_source}){_lens_note(seq)}, depth scale {seq.depth_scale:g}{_depth_note(seq)}, "
+               f"device {device()}",
                err=True)
     compile_note()
     pbar = None if no_progress else progress_bar(total=len(seq) - 1, unit="frame", desc=config.method)
@@ -301,6 +302,15 @@ def _print_run_summary(run):
         if a is not None:
             lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), scale {fmt(a.scale, 3)}")
     click.echo("\n".join(lines))
+
+
+def _depth_note(seq) -> str:
+    """``" (fr2 publishes a depth correction: --depth-scale fr2)"`` where the folder name's sensor has
+    one (:data:`jaxvo.camera.DEPTH_CORRECTIONS`) and the depth is read at the layout's scale, else ""."""
+    if depth_correction_for_sequence(seq.name) == 1.0 or seq.depth_scale != type(seq).DEPTH_SCALE:
+        return ""
+    name = preset_for_sequence(seq.name)
+    return f" ({name} publishes a depth correction: --depth-scale {name})"
 
 
 def _lens_note(seq) -> str:
