@@ -68,8 +68,7 @@ def parse_args(argv=None):
 def run_sequence(path: Path, methods, args, kind: str):
     scale = None
     if kind == "real" and args.depth_scale is not None:
-        scale = preset_for_sequence(path.name) if args.depth_scale == "folder" else args.depth_scale
-        scale = float(scale) if scale.replace(".", "", 1).isdigit() else scale
+        scale = preset_for_sequence(path.name) if args.depth_scale == "folder" else _number_or_name(args.depth_scale)
     seq = common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale)
     common.log(f"[table1] {seq.name}: {len(seq)} frames, {kind}")
     frames = common.load_frames(seq)
@@ -93,6 +92,15 @@ def run_sequence(path: Path, methods, args, kind: str):
                    f"{common.fmt(ev['rpe1s_t'], '.4f')} m/s  ate {common.fmt(ev['ate'], '.4f')} m  "
                    f"{st['median_ms']:.1f} ms/pair")
     return rows
+
+
+def _number_or_name(text: str):
+    """--depth-scale's text as a number where it is one, else as given (a sensor's name, which the
+    reader checks)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def _nanmed(x) -> float:
