@@ -91,3 +91,15 @@ def jaxvo_run(tmp_path_factory):
         return runs[key]
 
     return run
+
+
+@pytest.fixture
+def aot_restored():
+    """For a test that points jaxvo.runtime.aot at a folder of its own (or none): the session's
+    folder is put back afterwards, so that the later tests of the worker run the exported
+    programs, as the commands do, and do not compile the plain jit path of each program again."""
+    from jaxvo.runtime import aot
+
+    before = aot.folder()
+    yield
+    aot.enable(before)

@@ -109,7 +109,7 @@ def _scaled(x, config):
 _scaled_jit = jax.jit(_scaled)
 
 
-def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatch):
+def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatch, aot_restored):
     """aot.call: the first call exports and writes the program, a fresh start (the in-process
     memo cleared) loads it without tracing; a corrupt, truncated or foreign file is replaced by
     a fresh export; an unwritable folder and traced arguments take the jit path; all give the
@@ -167,7 +167,27 @@ def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatc
     assert aot.call("scaled", fn, _scaled_jit, (x, cfg))[1].shape == (2, 3)  # off: plain jit
 
 
-def test_unwritable_folder_still_runs_the_program(tmp_path, monkeypatch):
+def test_enabling_the_folder_in_use_keeps_the_programs_ready(tmp_path, monkeypatch, aot_restored):
+    """A command that switches on the folder already in use (every ``jaxvo`` command does, in
+    process under click's runner or a caller's loop) reloads nothing; another folder, or none,
+    starts afresh (its programs are that folder's)."""
+    monkeypatch.setattr(aot, "_PROGRAMS", {})
+    x = jnp.ones((2, 3), jnp.float32)
+    aot.enable(tmp_path / "a")
+    aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
+    before = aot.stats()
+    assert aot.enable(tmp_path / "a") == tmp_path / "a" and len(aot._PROGRAMS) == 1
+    aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
+    assert aot.stats() == before                     # neither loaded nor exported again
+    aot.enable(tmp_path / "b")
+    assert not aot._PROGRAMS
+    aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
+    assert aot.stats()["exported"] == before["exported"] + 1 and len(list((tmp_path / "b").iterdir())) == 1
+    aot.enable(None)
+    assert not aot._PROGRAMS and aot.folder() is None
+
+
+def test_unwritable_folder_still_runs_the_program(tmp_path, monkeypatch, aot_restored):
     monkeypatch.setattr(aot, "_PROGRAMS", {})
     folder = tmp_path / "exported"
     try:
@@ -186,7 +206,7 @@ def test_unwritable_folder_still_runs_the_program(tmp_path, monkeypatch):
         aot.enable(None)
 
 
-def test_cli_options_choose_the_folder(tmp_path):
+def test_cli_options_choose_the_folder(tmp_path, own_cache):
     """--no-cache wins over JAXVO_CACHE_DIR; --cache-dir creates its folder (both before any
     compilation: the sequence folder is missing, so the command stops with an error)."""
     env_dir, opt_dir = tmp_path / "from_env", tmp_path / "from_option"

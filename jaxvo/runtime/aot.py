@@ -75,17 +75,17 @@ _UNRELATED = re.compile(r"log|cache|explain|dump|traceback|pprint|transfer_guard
 
 def enable(path: Optional[os.PathLike]) -> Optional[Path]:
     """Keep exported programs in ``path`` (created if missing); None switches it off.
-    Returns the folder in use, or None when it cannot be created."""
-    _PROGRAMS.clear()
-    if path is None:
-        _FOLDER["path"] = None
-        return None
-    p = Path(path)
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        _FOLDER["path"] = None
-        return None
+    Returns the folder in use, or None when it cannot be created. The programs this process
+    has made ready stay ready while the folder stays the same (a command that switches on the
+    folder already in use reloads nothing); another folder, or none, starts afresh."""
+    p = None if path is None else Path(path)
+    if p is not None:
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            p = None
+    if p != _FOLDER["path"]:
+        _PROGRAMS.clear()
     _FOLDER["path"] = p
     return p
 

@@ -124,8 +124,9 @@ def test_ransac_on_coarse_levels_only(dynamic_pair):
     t_r, r_r = _errors(est.T_cur_ref)
     # measured 1.6 mm / 0.02 deg (classic: ~220 mm / 3.5 deg)
     assert t_r < 5.0 and r_r < 0.2, (t_r, r_r)
-    every = estimate_motion(a.frame(), b.frame(), CAM, Config(ransac_finest=0), jax.random.key(0))
-    assert np.all(np.asarray(every.hypotheses) > 0)
+    # the paper's algorithm (ransac_finest=0; the program the --paper runs of test_bitwise compile)
+    every = estimate_motion(a.frame(), b.frame(), CAM, Config.paper(), jax.random.key(0))
+    assert Config.paper().ransac_finest == 0 and np.all(np.asarray(every.hypotheses) > 0)
     # the default scores the pose carried up from level 2 beside the plain fit of level 1, which
     # a mover can drag away: with level 1's refinement on one pixel per 2x2 tile (the tiles
     # RANSAC had before) and hypotheses ranked by pixel count the plain fit alone ("refined")

@@ -436,7 +436,7 @@ def test_frame_to_frame_policy_has_no_segmentation(frames320):
 
 
 @pytest.mark.parametrize("exported", [False, True])
-def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, exported, monkeypatch):
+def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, exported, monkeypatch, aot_restored):
     """The segmentation's programs compiled in the background from the first frame have the
     signatures of the later calls: those calls compile nothing (a mismatch, e.g. a dtype or a
     sharding, would compile every program twice, once for nothing). Through the exported
