@@ -344,7 +344,10 @@ def test_brightness_offset_recovers_an_exposure_change(static_pair):
     from jaxvo.estimator.residuals import reference_points
     a, b = static_pair
     bright = Frame(np.clip(b.frame().intensity + 40.0, 0, 255).astype(np.float32), b.frame().depth)
-    plain = estimate_motion(a.frame(), bright, CAM, Config(brightness="none"), jax.random.key(0))
+    # the paper's algorithm compares luminance as it is (brightness "none"; the program test_bitwise's
+    # --paper runs compile)
+    plain = estimate_motion(a.frame(), bright, CAM, Config.paper(), jax.random.key(0))
+    assert Config.paper().brightness == "none"
     fitted = estimate_motion(a.frame(), bright, CAM, Config(), jax.random.key(0))   # "offset": the default
     t_err, r_err = _errors(fitted.T_cur_ref)
     assert t_err < 3.0 and r_err < 0.15, (t_err, r_err)
