@@ -191,11 +191,9 @@ def _wait_for_poses(proc, out: Path, n: int, timeout: float = 240.0):
 
 
 def test_interrupted_run_keeps_finished_frames(tmp_path, synth_seq):
+    # the subprocesses find the programs in the session's compilation cache (JAXVO_CACHE_DIR,
+    # tests/conftest.py), which `jaxvo run` switches on
     env = dict(os.environ)
-    # share the compiled estimator between the two subprocesses
-    env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / "jax_cache")
-    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
-    env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
     n_frames = len([ln for ln in (synth_seq / "rgb.txt").read_text().splitlines() if not ln.startswith("#")])
 
     # Ctrl-C: exit code 130, summary printed, the .partial file holds every finished frame
