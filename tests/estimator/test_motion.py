@@ -355,12 +355,15 @@ def test_brightness_offset_recovers_an_exposure_change(static_pair):
     assert _errors(plain.T_cur_ref)[0] > 3 * t_err
     assert 35.0 < float(fitted.brightness) < 42.0          # clipping at 255 pulls a little under 40
     assert float(plain.brightness) == 0.0
-    # the fit itself, at the true pose: the median offset, and 0 under thresh_lum / 3
-    ref_l = build_pyramid(a.frame().intensity, a.frame().depth, 1)[0]
-    pts = reference_points(ref_l, CAM, 4)
+    # the fit itself, at the true pose: the median offset, and 0 under thresh_lum / 3 (each step
+    # jitted, as in the estimator: one compilation each, not one per operation)
+    pyramid_of = jax.jit(build_pyramid, static_argnums=2)
+    ref_l = pyramid_of(a.frame().intensity, a.frame().depth, 1)[0]
+    pts = jax.jit(reference_points, static_argnums=2)(ref_l, CAM, 4)
+    fit = jax.jit(fit_offset)
     for shift, expected in [(25.0, 25.0), (-25.0, -25.0), (8.0, 0.0)]:
-        cur_l = build_pyramid(np.clip(b.frame().intensity + shift, 0, 255), b.frame().depth, 1)[0]
-        off = float(fit_offset(jnp.asarray(MOTION, jnp.float32), pts, cur_l, CAM, 30.0, 0.05))
+        cur_l = pyramid_of(np.clip(b.frame().intensity + shift, 0, 255), b.frame().depth, 1)[0]
+        off = float(fit(jnp.asarray(MOTION, jnp.float32), pts, cur_l, CAM, 30.0, 0.05))
         assert abs(off - expected) < 2.5, (shift, off)
     moved = apply(ref_l, jnp.float32(5.0))
     np.testing.assert_allclose(np.asarray(moved.intensity), np.asarray(ref_l.intensity) + 5.0, rtol=1e-6)

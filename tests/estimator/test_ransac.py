@@ -300,32 +300,38 @@ def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
     """A level padded and stacked with larger ones (jaxvo.estimator.pyramid.stack_padded, for the scan over
     levels) draws the same patch pixels for the same key (the k-th drawable pixel is the same
     pixel), gathers the same reference points, and gives the same residuals, validity included
-    at the image border and beyond it (where the pad must not count as image)."""
-    from jaxvo.estimator.residuals import gather_points, photometric_terms, residuals, rgbd_terms
+    at the image border and beyond it (where the pad must not count as image). Each function
+    runs jitted, as in the estimator (one compilation each, not one per operation)."""
+    from jaxvo.estimator import residuals as R
+    gather_points, residuals, photometric_terms, rgbd_terms = (
+        jax.jit(f) for f in (R.gather_points, R.residuals, R.photometric_terms, R.rgbd_terms))
+    points_of = jax.jit(reference_points)
+    sample = jax.jit(sample_patches, static_argnums=(2, 3, 4))
+    table = jax.jit(sampling_table, static_argnums=1)
     rng = np.random.default_rng(0)
     h, w = 48, 64
     img = jnp.asarray(rng.uniform(0, 255, (h, w)), jnp.float32)
     depth = jnp.asarray(rng.uniform(1.0, 3.0, (h, w)) * (rng.uniform(size=(h, w)) > 0.2), jnp.float32)
-    levels = pyramid.build_pyramid(img, depth, 3)
-    stack = pyramid.stack_padded([levels[2], levels[1], levels[0]])
+    levels = jax.jit(pyramid.build_pyramid, static_argnums=2)(img, depth, 3)
+    stack = jax.jit(pyramid.stack_padded)([levels[2], levels[1], levels[0]])
     cam = DEFAULT.with_size(w, h).at_level(2)
     small = pyramid.Level(*stack[:5], stack.size[0])       # level 2 (16x12) padded to 64x48
     assert small.depth.shape == (3, h, w)
-    assert int(sampling_table(small, 1).rows[-1]) == int(sampling_table(levels[2], 1).rows[-1]) > 0
+    assert int(table(small, 1).rows[-1]) == int(table(levels[2], 1).rows[-1]) > 0
     key = jax.random.key(3)
-    pu, pv = sample_patches(key, levels[2], 6, 4, 1)
-    qu, qv = sample_patches(key, small, 6, 4, 1)
+    pu, pv = sample(key, levels[2], 6, 4, 1)
+    qu, qv = sample(key, small, 6, 4, 1)
     np.testing.assert_array_equal(np.asarray(qu), np.asarray(pu))
     np.testing.assert_array_equal(np.asarray(qv), np.asarray(pv))
     for x, y in zip(gather_points(small, cam, pu, pv), gather_points(levels[2], cam, pu, pv)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     # every pixel of the level, moved so that some land on the border, outside, or in the pad
-    pts = reference_points(levels[2], cam)
+    pts = points_of(levels[2], cam)
     T = G.exp(np.array([0.0, 0.02, 0.0, 0.15, 0.05, 0.0]))
     a, b = residuals(T, pts, small, cam), residuals(T, pts, levels[2], cam)
     assert 0 < int(np.sum(b.valid_int)) < int(np.sum(pts.valid))
     for x, y in zip(a, b):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    for f in (photometric_terms, functools.partial(rgbd_terms, depth_weight=600.0)):
+    for f in (photometric_terms, lambda *a: rgbd_terms(*a, 600.0)):
         for x, y in zip(f(T, pts, small, cam), f(T, pts, levels[2], cam)):
             np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-4)
