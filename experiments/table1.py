@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 from jaxvo.camera import preset_for_sequence  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
+from jaxvo.data.calibration import parse_depth_scale  # noqa: E402
 
 DEFAULT_METHODS = "classic,huber,ransac,opencv-rgb,opencv-rgbd,open3d-color,open3d-hybrid"
 
@@ -68,7 +69,7 @@ def parse_args(argv=None):
 def run_sequence(path: Path, methods, args, kind: str):
     scale = None
     if kind == "real" and args.depth_scale is not None:
-        scale = preset_for_sequence(path.name) if args.depth_scale == "folder" else _number_or_name(args.depth_scale)
+        scale = preset_for_sequence(path.name) if args.depth_scale == "folder" else parse_depth_scale(args.depth_scale)
     seq = common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale)
     common.log(f"[table1] {seq.name}: {len(seq)} frames, {kind}")
     frames = common.load_frames(seq)
@@ -92,15 +93,6 @@ def run_sequence(path: Path, methods, args, kind: str):
                    f"{common.fmt(ev['rpe1s_t'], '.4f')} m/s  ate {common.fmt(ev['ate'], '.4f')} m  "
                    f"{st['median_ms']:.1f} ms/pair")
     return rows
-
-
-def _number_or_name(text: str):
-    """--depth-scale's text as a number where it is one, else as given (a sensor's name, which the
-    reader checks)."""
-    try:
-        return float(text)
-    except ValueError:
-        return text
 
 
 def _nanmed(x) -> float:

@@ -98,22 +98,16 @@ def size_option(ctx, param, value):
 
 
 def depth_scale_option(ctx, param, value):
-    """Click callback of --depth-scale: a number > 0, or the name of a sensor with a published depth
-    correction (:data:`jaxvo.camera.DEPTH_CORRECTIONS`, resolved by the reader against the layout's
-    scale); None stays None; anything else a usage error."""
+    """Click callback of --depth-scale: :func:`jaxvo.data.calibration.parse_depth_scale` (a number
+    > 0, or the name of a sensor with a published depth correction, resolved by the reader against
+    the layout's scale); None stays None; anything else a usage error."""
     if value is None:
         return None
-    from jaxvo.camera import DEPTH_CORRECTIONS
-    if value.strip() in DEPTH_CORRECTIONS:
-        return value.strip()
+    from jaxvo.data.calibration import parse_depth_scale
     try:
-        number = float(value)
-    except ValueError:
-        number = None
-    if number is None or not number > 0 or number == float("inf"):
-        raise click.BadParameter(f"must be a number > 0 or a sensor with a published depth correction "
-                                 f"({', '.join(sorted(DEPTH_CORRECTIONS))}), got {value!r}")
-    return number
+        return parse_depth_scale(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 DEPTH_SCALE_HELP = ("Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "

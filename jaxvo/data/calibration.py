@@ -19,8 +19,25 @@ from jaxvo.data.errors import DatasetError
 from jaxvo.data.textfiles import _data_lines
 from jaxvo.frame import PLAUSIBLE_DEPTH, suggest_depth_scale
 
-__all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "resolve_depth_scale", "PLAUSIBLE_DEPTH",
+__all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "parse_depth_scale", "resolve_depth_scale", "PLAUSIBLE_DEPTH",
            "DEFAULT_SCALE_MIN_MEDIAN"]
+
+
+def parse_depth_scale(text: str):
+    """A depth scale given as text (``--depth-scale``): a number > 0 as a float, or the name of a
+    sensor of :data:`jaxvo.camera.DEPTH_CORRECTIONS` as given (:func:`resolve_depth_scale` makes it a
+    number against the layout's scale). ValueError (one line) for anything else."""
+    name = text.strip()
+    if name in DEPTH_CORRECTIONS:
+        return name
+    try:
+        number = float(name)
+    except ValueError:
+        number = None
+    if number is None or not number > 0 or number == float("inf"):
+        raise ValueError(f"must be a number > 0 or a sensor with a published depth correction "
+                         f"({', '.join(sorted(DEPTH_CORRECTIONS))}), got {text!r}")
+    return number
 
 
 def resolve_depth_scale(value, layout_scale: float):

@@ -583,3 +583,13 @@ def test_bad_index_says_how(tmp_path, index, match):
     s = TumSequence(make_seq(tmp_path, n=5), camera=SMALL)
     with pytest.raises(ValueError, match=match):
         s[index]
+
+
+def test_parse_depth_scale_reads_a_number_or_a_sensor():
+    """--depth-scale's text (the CLI and experiments/table1.py): a positive number as a float, a
+    sensor with a published correction as its name, anything else one ValueError naming it."""
+    from jaxvo.data.calibration import parse_depth_scale
+    assert parse_depth_scale("5155") == 5155.0 and parse_depth_scale(" fr2 ") == "fr2"
+    for bad in ("fr9", "-5", "0", "inf", "nan"):
+        with pytest.raises(ValueError, match=f"got '{bad}'"):
+            parse_depth_scale(bad)
