@@ -31,7 +31,7 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
-DIAGNOSTICS = ("exposure", "levers", "map_poses", "mask_limits", "variants")
+DIAGNOSTICS = ("exposure", "levers", "map_poses", "mask_limits", "pair_floor", "variants")
 
 
 def _script(name):
@@ -49,7 +49,7 @@ def cache(tmp_path_factory):
 
 
 @pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile",
-                                  "hindsight_masks"])
+                                  "hindsight_masks", "pair_floor"])
 def test_help(name):
     command = ["-m", f"experiments.diagnostics.{name}"] if name in DIAGNOSTICS else [str(EXP / f"{name}.py")]
     r = subprocess.run([sys.executable, *command, "--help"], capture_output=True, text=True, timeout=120, cwd=REPO)
@@ -295,6 +295,53 @@ def test_variants_quick(tmp_path):
     assert "| classic | coarser | dynamic |" in out.read_text()
     with pytest.raises(SystemExit, match="coarse: .*did you mean 'finest_level'"):
         _script("variants").main(["--quick", "--variants", '{"coarse": {"finest_levl": 3}}'])
+
+
+def _rotation(axis, angle):
+    """Rodrigues' formula: the (3, 3) rotation by ``angle`` rad about the unit vector ``axis``."""
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def test_pair_floor_smoothing_keeps_a_steady_turn_and_removes_jitter():
+    """The ground truth's orientations averaged over +-k samples: a turn at constant angular
+    velocity is left as it is (to rounding), its second difference is 0; jitter of 0.3 deg per
+    sample added to it shows as that second difference, and mostly goes with the smoothing."""
+    pf = _script("pair_floor")
+    t = np.arange(60) / 30.0
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    T = np.tile(np.eye(4), (60, 1, 1))
+    T[:, :3, :3] = [_rotation(axis, 0.004 * k) for k in range(60)]
+    T[:, :3, 3] = np.outer(t, [0.1, 0.0, 0.05])
+    np.testing.assert_allclose(pf.smoothed_orientations(t, T, 0.1), T, atol=1e-12)
+    assert pf.rotation_jerk(T) < 1e-5
+    rng = np.random.default_rng(0)
+    noisy = T.copy()
+    for k in range(60):
+        v = rng.normal(size=3)
+        noisy[k, :3, :3] = _rotation(v / np.linalg.norm(v), np.radians(0.3)) @ T[k, :3, :3]
+    raw, smooth = pf.rotation_jerk(noisy), pf.rotation_jerk(pf.smoothed_orientations(t, noisy, 0.1))
+    assert 0.5 < raw < 1.5 and smooth < 0.25 * raw, (raw, smooth)
+    np.testing.assert_array_equal(pf.smoothed_orientations(t, noisy, 0.1)[:, :3, 3], noisy[:, :3, 3])
+
+
+def test_pair_floor_quick(tmp_path):
+    """pair_floor.py: a row per (stretch, method), errors against the ground truth and against
+    its smoothed orientations; the Bonn marker's orientation jitters from sample to sample and
+    the smoothing takes most of it out; a bad stretch stops with its name."""
+    _require(STATIC, DYNAMIC)
+    out = tmp_path / "pair_floor.md"
+    _script("pair_floor").main(["--quick", "--methods", "classic", "--out", str(out)])
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["stretch"], r["method"], r["pairs"]) for r in data["rows"]] == [
+        ("Bonn crowd, empty room", "classic", 4), ("Bonn crowd, people", "classic", 4), ("fr2/desk", "classic", 4)]
+    assert all(0 < r["trans_mm"] < 100 and 0 < r["rot_deg"] < 5 and 0 < r["rot_smooth_deg"] < 5
+               for r in data["rows"])
+    bonn = data["ground_truth"][0]
+    assert round(bonn["rate_hz"]) == 30 and bonn["jerk_smooth_deg"] < 0.5 * bonn["jerk_deg"]
+    assert "| Bonn crowd, people | classic | 4 |" in out.read_text()
+    with pytest.raises(SystemExit, match="still: expected"):
+        _script("pair_floor").main(["--stretches", '{"still": ["bonn/rgbd_bonn_crowd", 5, 5]}'])
 
 
 def test_levers_variants_take_json_lists_and_name_a_bad_field():
