@@ -512,3 +512,58 @@ def test_startup_reads_xla_compile_log_by_stage():
     assert out["stages"]["other"] == (1, pytest.approx(0.003))
     assert out["top"][0] == (0.02, "add_fusion.3", "refinement", "solvers.py:_system:84")
     assert startup.parse_codegen_log("no timing lines", kernels) is None
+
+
+def test_rerun_reads_the_commands_of_the_bash_blocks():
+    """rerun.py: each line of a bash block is one command, a trailing comment dropped, ``python``
+    this interpreter and ``jaxvo`` its ``-m jaxvo``; text outside the blocks is not run; another
+    program in a block is refused, naming the line."""
+    rerun = _script("rerun")
+    text = ("Intro `python not_this.py`.\n\n```bash\npython experiments/x.py --out a/b.md   # a note\n\n"
+            "python -m experiments.diagnostics.y --seeds 0,1 --variants '{\"a b\": {}}'\n```\n\n"
+            "```python\nprint('not a command')\n```\n\n```bash\njaxvo demo\n```\n")
+    cmds = rerun.commands(text)
+    assert [c.argv for c in cmds] == [
+        [sys.executable, "experiments/x.py", "--out", "a/b.md"],
+        [sys.executable, "-m", "experiments.diagnostics.y", "--seeds", "0,1", "--variants", '{"a b": {}}'],
+        [sys.executable, "-m", "jaxvo", "demo"]]
+    assert [c.index for c in cmds] == [1, 2, 3] and [c.script for c in cmds] == ["x", "y", "jaxvo-demo"]
+    assert [c.out for c in cmds] == ["a/b.md", None, None]
+    with pytest.raises(ValueError, match="'rm -rf results'"):
+        rerun.commands("```bash\nrm -rf results\n```\n")
+
+
+def test_rerun_lists_the_results_commands_and_stops_at_a_failure(tmp_path, capsys):
+    """Every command of docs/results.md names a script or diagnostic of experiments/ (or a jaxvo
+    command); a run goes in order, logs each command, stops at the first failure with exit status
+    1 (the rest with --keep-going), and skips the GPU's command unless asked."""
+    rerun = _script("rerun")
+    cmds = rerun.commands((REPO / "docs" / "results.md").read_text())
+    assert len(cmds) >= 15
+    for c in cmds:
+        words = c.argv[1:]
+        if words[0] == "-m" and words[1] != "jaxvo":
+            assert (REPO / (words[1].replace(".", "/") + ".py")).is_file(), c.line
+        elif words[0] != "-m":
+            assert (REPO / words[0]).is_file(), c.line
+    assert rerun.main(["--list"]) == 0
+    listed = capsys.readouterr().out
+    assert f"{len(cmds)} commands" in listed and "experiments/gpu.py" in listed and "(needs a CUDA GPU)" in listed
+
+    md = tmp_path / "r.md"
+    md.write_text("```bash\npython -c \"print('one')\"\npython -c \"import sys; sys.exit(3)\"\n"
+                  "python -c \"print('three')\"\npython experiments/gpu.py --out x\n```\n")
+    logs = tmp_path / "logs"
+    assert rerun.main(["--results", str(md), "--log-dir", str(logs)]) == 1
+    assert sorted(p.name for p in logs.iterdir()) == ["01-python.log", "02-python.log"]
+    assert "one" in (logs / "01-python.log").read_text()
+    out = capsys.readouterr()
+    assert "2. exit 3" in out.out and "command 2 failed" in out.err and "4. skipped (needs a CUDA GPU" in out.out
+    assert rerun.main(["--results", str(md), "--log-dir", str(logs), "--keep-going", "--only", "2,3"]) == 1
+    assert "three" in (logs / "03-python.log").read_text()
+    assert rerun.main(["--results", str(md), "--dry-run", "--match", "one"]) == 0
+    assert "1. would run: python -c" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="no command numbered 9"):
+        rerun.main(["--results", str(md), "--only", "9"])
+    with pytest.raises(SystemExit, match="cannot read"):
+        rerun.main(["--results", str(tmp_path / "missing.md"), "--list"])
