@@ -340,8 +340,17 @@ def test_pair_floor_quick(tmp_path):
     bonn = data["ground_truth"][0]
     assert round(bonn["rate_hz"]) == 30 and bonn["jerk_smooth_deg"] < 0.5 * bonn["jerk_deg"]
     assert "| Bonn crowd, people | classic | 4 |" in out.read_text()
+    # --config reaches the estimates (a coarser finest level changes them)
+    coarse = tmp_path / "coarse.md"
+    _script("pair_floor").main(["--quick", "--methods", "classic", "--config", '{"finest_level": 3}', "--out",
+                                str(coarse)])
+    rows = json.loads(coarse.with_suffix(".json").read_text())["rows"]
+    assert [r["trans_mm"] for r in rows] != [r["trans_mm"] for r in data["rows"]]
+    assert '`{"finest_level": 3}`' in coarse.read_text()
     with pytest.raises(SystemExit, match="still: expected"):
         _script("pair_floor").main(["--stretches", '{"still": ["bonn/rgbd_bonn_crowd", 5, 5]}'])
+    with pytest.raises(SystemExit, match="--config: .*finest_levl"):
+        _script("pair_floor").main(["--config", '{"finest_levl": 3}'])
 
 
 def test_levers_variants_take_json_lists_and_name_a_bad_field():

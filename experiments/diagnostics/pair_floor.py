@@ -37,7 +37,7 @@ from experiments import common
 import jax  # noqa: E402
 
 from jaxvo import geometry  # noqa: E402
-from jaxvo.config import METHODS  # noqa: E402
+from jaxvo.config import METHODS, Config  # noqa: E402
 from jaxvo.data import data_root  # noqa: E402
 from jaxvo.data.stamps import interpolate_poses  # noqa: E402
 from jaxvo.tracking.odometry import track  # noqa: E402
@@ -57,6 +57,9 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--methods", default="classic,huber,ransac,default,peers",
                     help="comma list: jaxvo methods, 'default' (the default odometry), peer names, 'peers' = "
                          "every available peer (default: %(default)s)")
+    ap.add_argument("--config", default=None,
+                    help="JSON object of jaxvo.Config fields applied to the jaxvo methods and the default odometry "
+                         "(e.g. '{\"terms\": \"rgbd\"}')")
     ap.add_argument("--smooth", type=float, default=0.1,
                     help="seconds either side of a ground-truth sample whose orientations are averaged into "
                          "its own (default 0.1)")
@@ -135,7 +138,8 @@ def rmse(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smooth: float, quick: bool) -> dict:
+def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smooth: float, quick: bool,
+                config: Config) -> dict:
     n = 5 if quick else end - first
     seq = common.open_sequence(folder, max_frames=n, start=first)
     gt = seq.groundtruth
@@ -150,9 +154,9 @@ def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smo
     rows = []
     for m in methods:
         if m == "default":
-            relative = track(frames, seq.camera, key=jax.random.key(0)).relative
+            relative = track(frames, seq.camera, config, key=jax.random.key(0)).relative
         elif m in METHODS or common.peer_available(m):
-            relative = common.run_method(m, frames, seq.camera, key=jax.random.key(0), warmup=False)["relative"]
+            relative = common.run_method(m, frames, seq.camera, config, key=jax.random.key(0), warmup=False)["relative"]
         else:
             continue
         e, s = pair_errors(relative, G), pair_errors(relative, G_smooth)
@@ -172,12 +176,18 @@ def main(argv=None) -> None:
     methods = parse_method_list(args.methods)
     if not args.smooth > 0:
         raise SystemExit(f"--smooth: expected seconds > 0, got {args.smooth}")
+    try:
+        config = Config.from_dict(common.config_changes(args.config))
+    except ValueError as e:
+        raise SystemExit(f"--config: {e}")
     t0 = time.time()
-    results = [run_stretch(name, *spec, methods, args.smooth, args.quick) for name, spec in stretches.items()]
+    results = [run_stretch(name, *spec, methods, args.smooth, args.quick, config) for name, spec in stretches.items()]
     rows = [r for res in results for r in res["rows"]]
     gts = [res["gt"] for res in results]
     lines = common.provenance_md("Per-pair accuracy and the ground truth's orientation noise",
                                  "experiments/diagnostics/pair_floor.py", argv)
+    if args.config:
+        lines += [f"Config fields changed from the default: `{args.config}`.", ""]
     lines += ["Each consecutive pair of a stretch, estimated alone (the default odometry: its track over the "
               "stretch); RMSE over the pairs of the error against the ground truth interpolated at the frames, "
               f"and the rotational error against the ground truth with each orientation averaged over "
