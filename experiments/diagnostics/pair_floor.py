@@ -6,7 +6,7 @@ its people, frames 25-159; TUM fr2/desk, all 50 frames), every consecutive pair 
 each method alone (``estimate_motion`` with ``Config(method=...)``, the key of pair k
 ``fold_in(key(0), k)``; the peers as ``jaxvo.evaluation.peers`` run them), and the default odometry
 (``jaxvo.track`` with ``TrackConfig()``) runs over the stretch, whose consecutive relative poses are
-what its RPE is made of. Each pair's T_cur_ref is compared with the ground truth interpolated at the
+what its RPE is made of; ``--config`` changes ``Config`` fields of both. Each pair's T_cur_ref is compared with the ground truth interpolated at the
 two frames' stamps (as ``jaxvo eval``): the translational error |t| (mm) and rotational error (deg)
 of ``inv(T_gt) @ T_est``, RMSE over the stretch.
 
@@ -15,9 +15,9 @@ sample to sample where its position hardly does. Reported per recording: the RMS
 relative rotation between consecutive ground-truth samples (the rotation's second difference,
 deg; for a smooth hand-held motion it is far below the rotation per sample), raw and with each
 sample's orientation replaced by the chordal mean of the orientations of the k samples on either
-side, k = ``--smooth`` seconds times the ground truth's rate (positions unchanged). The rotational error is given against both: against the smoothed ground
-truth it is the estimator's own, as far as the smoothing removes the ground truth's noise and
-keeps the motion.
+side, k = ``--smooth`` seconds times the ground truth's rate (positions unchanged). The rotational
+error is given against both: against the smoothed ground truth it is the estimator's own, as far
+as the smoothing removes the ground truth's noise and keeps the motion.
 
 Example::
 
@@ -158,6 +158,7 @@ def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smo
         elif m in METHODS or common.peer_available(m):
             relative = common.run_method(m, frames, seq.camera, config, key=jax.random.key(0), warmup=False)["relative"]
         else:
+            common.log(f"[pair_floor] {m}: not installed here, left out")
             continue
         e, s = pair_errors(relative, G), pair_errors(relative, G_smooth)
         rows.append({"stretch": name, "method": "default odometry" if m == "default" else m, "pairs": len(relative),
