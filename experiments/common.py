@@ -265,15 +265,15 @@ def int_list(text: str) -> List[int]:
     return values
 
 
-def json_variants(text: str, expected: str) -> dict:
-    """``--variants``: a non-empty JSON object of name -> variant, else SystemExit saying that
-    ``expected`` (what each variant is) was expected."""
+def json_variants(text: str, expected: str, option: str = "--variants") -> dict:
+    """``option`` (default ``--variants``): a non-empty JSON object of name -> entry, else
+    SystemExit naming the option and saying that ``expected`` (what each entry is) was expected."""
     try:
         variants = json.loads(text)
     except json.JSONDecodeError as e:
-        raise SystemExit(f"--variants: not JSON: {e}")
+        raise SystemExit(f"{option}: not JSON: {e}")
     if not isinstance(variants, dict) or not variants:
-        raise SystemExit(f"--variants: expected a JSON object of name -> {expected}")
+        raise SystemExit(f"{option}: expected a JSON object of name -> {expected}")
     return variants
 
 

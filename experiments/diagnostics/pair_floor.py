@@ -40,6 +40,7 @@ from jaxvo import geometry  # noqa: E402
 from jaxvo.config import METHODS, Config  # noqa: E402
 from jaxvo.data import data_root  # noqa: E402
 from jaxvo.data.stamps import interpolate_poses  # noqa: E402
+from jaxvo.evaluation.metrics import summarize  # noqa: E402
 from jaxvo.tracking.odometry import track  # noqa: E402
 
 DEFAULT_STRETCHES = json.dumps({
@@ -70,12 +71,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 def parse_stretches(text: str) -> Dict[str, tuple]:
     """name -> (folder Path, first frame, end frame); a bad entry stops with its name."""
-    try:
-        raw = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"--stretches: not JSON: {e}")
-    if not isinstance(raw, dict) or not raw:
-        raise SystemExit('--stretches: expected a JSON object of name -> ["folder", first, end]')
+    raw = common.json_variants(text, '["folder", first, end]', "--stretches")
     out = {}
     for name, spec in raw.items():
         ok = isinstance(spec, list) and len(spec) == 3 and isinstance(spec[0], str) \
@@ -134,10 +130,6 @@ def pair_errors(relative: np.ndarray, G: np.ndarray) -> Dict[str, np.ndarray]:
     return out
 
 
-def rmse(x) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
-
-
 def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smooth: float, quick: bool,
                 config: Config) -> dict:
     n = 5 if quick else end - first
@@ -162,7 +154,8 @@ def run_stretch(name: str, folder, first: int, end: int, methods: List[str], smo
             continue
         e, s = pair_errors(relative, G), pair_errors(relative, G_smooth)
         rows.append({"stretch": name, "method": "default odometry" if m == "default" else m, "pairs": len(relative),
-                     "trans_mm": 1000 * rmse(e["trans"]), "rot_deg": rmse(e["rot"]), "rot_smooth_deg": rmse(s["rot"]),
+                     "trans_mm": 1000 * summarize(e["trans"]).rmse, "rot_deg": summarize(e["rot"]).rmse,
+                     "rot_smooth_deg": summarize(s["rot"]).rmse,
                      "gt_trans_mm": 1000 * float(np.mean(e["gt_trans"])), "gt_rot_deg": float(np.mean(e["gt_rot"])),
                      "gt_rot_smooth_deg": float(np.mean(s["gt_rot"]))})
     span = (t >= seq.timestamps[0] - 1.0) & (t <= seq.timestamps[-1] + 1.0)   # the samples around the stretch
