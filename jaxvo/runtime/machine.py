@@ -4,7 +4,11 @@ The same seed, frames and settings give bitwise the same poses only where the co
 program and the way it runs are the same. Three things on the machine decide that:
 
 * jax / jaxlib (the compiler) and the backend (its device kind);
-* the CPU, whose instruction set and caches XLA's code and its matrix products are tuned for;
+* the CPU, whose instruction set and caches XLA's code and its matrix products are tuned for.
+  Its model name alone does not tell: a virtual machine may report only "AMD EPYC" for
+  processors of several generations, and XLA compiles for what the host offers (on one with
+  AVX-512 it vectorises the same loops otherwise, and sums in another order). So the record
+  keeps the processor's family, model and vector extensions too (:func:`instruction_set`);
 * the number of cores the process may use: XLA's matrix products (the 7x7 normal equations
   of every Gauss-Newton step, a sum over all pixels) split that sum across XLA's threads,
   one per usable core, so another core count adds the pixels in another order. The pose then
@@ -20,9 +24,9 @@ from __future__ import annotations
 import os
 import platform
 from pathlib import Path
-from typing import Dict, List, Mapping
+from typing import Dict, List, Mapping, Optional
 
-__all__ = ["record", "differences", "cpu_model", "usable_cores"]
+__all__ = ["record", "differences", "cpu_model", "instruction_set", "usable_cores"]
 
 
 def cpu_model() -> str:
@@ -36,6 +40,36 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
+# the /proc/cpuinfo flags that change the code LLVM emits for XLA's loops: the vector and
+# fused-multiply-add extensions (a prefix matches e.g. every avx512* and amx* flag)
+_VECTOR_FLAGS = ("sse4", "avx", "fma", "f16c", "amx", "asimd", "sve")
+
+
+def instruction_set(cpuinfo: Optional[str] = None) -> str:
+    """The processor's generation and vector extensions, as XLA's code depends on them:
+    ``"<machine> family F model M: flag flag ..."`` (Linux ``/proc/cpuinfo``, or the text
+    ``cpuinfo`` in its format: cpu family, model and the SSE4 / AVX / FMA / F16C / AMX (x86) or
+    ASIMD / SVE (Arm) flags, sorted); elsewhere :func:`platform.machine` alone."""
+    arch = platform.machine() or "unknown"
+    text = cpuinfo
+    if text is None:
+        try:
+            text = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return arch
+    fields = {}
+    for line in text.splitlines():
+        if not line.strip():
+            break                                   # the first processor's block is enough
+        name, _, value = line.partition(":")
+        fields.setdefault(name.strip().lower(), value.strip())
+    flags = (fields.get("flags") or fields.get("features") or "").split()
+    vector = sorted({f for f in flags if f.startswith(_VECTOR_FLAGS)})
+    family, model = fields.get("cpu family"), fields.get("model")
+    where = f" family {family} model {model}" if family and model else ""
+    return f"{arch}{where}: {' '.join(vector)}"
+
+
 def usable_cores() -> int:
     """Cores this process may run on (its CPU affinity where the OS has one, e.g. under ``taskset``)."""
     if hasattr(os, "sched_getaffinity"):
@@ -44,13 +78,14 @@ def usable_cores() -> int:
 
 
 def record() -> Dict[str, object]:
-    """{"cpu", "cores", "jax", "jaxlib", "device"}: what decides a run's floats on this machine
-    (see the module docstring); "device" is the default backend's platform and device kind."""
+    """{"cpu", "isa", "cores", "jax", "jaxlib", "device"}: what decides a run's floats on this
+    machine (see the module docstring); "isa" is :func:`instruction_set`, "device" the default
+    backend's platform and device kind."""
     import jax
     import jaxlib
 
     dev = jax.devices()[0]
-    return {"cpu": cpu_model(), "cores": usable_cores(), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+    return {"cpu": cpu_model(), "isa": instruction_set(), "cores": usable_cores(), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
             "device": f"{dev.platform} ({dev.device_kind})"}
 
 

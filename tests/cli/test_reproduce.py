@@ -121,6 +121,26 @@ def test_machine_differences_name_only_fields_both_records_have():
     assert differences({"cpu": "A", "cores": 2, "gone": 1}, {"cpu": "B", "cores": 2, "new": 3}) == ["cpu: A -> B"]
 
 
+def test_instruction_set_names_the_generation_and_vector_extensions():
+    """A virtual machine may name every generation of its processors alike ("AMD EPYC"); the
+    record tells them apart by family, model and vector flags, in a fixed order."""
+    import platform
+
+    from jaxvo.runtime.machine import instruction_set
+
+    zen4 = ("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\n"
+            "model name\t: AMD EPYC\nflags\t\t: fpu sse4_2 avx2 avx512f fma avx lm avx512bw\n\n"
+            "processor\t: 1\ncpu family\t: 99\nflags\t\t: fpu\n")
+    arch = platform.machine()
+    assert instruction_set(zen4) == f"{arch} family 25 model 17: avx avx2 avx512bw avx512f fma sse4_2"
+    zen2 = zen4.replace("model\t\t: 17", "model\t\t: 49").replace("cpu family\t: 25", "cpu family\t: 23")
+    zen2 = zen2.replace(" avx512f", "").replace(" avx512bw", "")
+    assert instruction_set(zen2) == f"{arch} family 23 model 49: avx avx2 fma sse4_2"
+    # Arm's /proc/cpuinfo: "Features", no family
+    assert instruction_set("processor\t: 0\nFeatures\t: fp asimd sve crc32\n") == f"{arch}: asimd sve"
+    assert instruction_set().startswith(arch)
+
+
 def test_config_from_a_trajectory_says_where_each_setting_came_from(tmp_path):
     """--config TRAJ: a 'settings' line names the file (or the command line) per setting, the
     intrinsics are labelled as the header's, one note lists what an older header lacked (filled
