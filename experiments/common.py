@@ -78,6 +78,7 @@ def machine_info() -> Dict[str, object]:
         "cpu_count": os.cpu_count(),
         "cpu_affinity": machine.usable_cores(),
         "cpu_model": machine.cpu_model(),
+        "isa": machine.instruction_set(),
         "platform": platform.platform(),
         "python": platform.python_version(),
         "jax": jax.__version__,
@@ -92,13 +93,24 @@ def machine_info() -> Dict[str, object]:
     return info
 
 
+def isa_summary(isa: str) -> str:
+    """The processor's generation and widest vector unit from :func:`jaxvo.runtime.machine.instruction_set`,
+    e.g. ``x86_64 family 25 model 17, AVX-512``: what tells apart machines of one model name, whose
+    times (and floats) differ."""
+    head, _, flags = isa.partition(":")
+    flags = flags.split()
+    widest = next((name for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX"), ("sve", "SVE"),
+                                           ("asimd", "ASIMD")) if flag in flags), None)
+    return f"{head}, {widest}" if widest else head
+
+
 def provenance_md(title: str, script: str, argv, extra: str = "") -> List[str]:
     """Markdown header lines: title, the exact command, date and machine."""
     m = machine_info()
     lines = [f"# {title}", "",
              f"Produced by `{command_line(script, argv)}` (from the repository root) on "
              f"{time.strftime('%Y-%m-%d %H:%M %Z')}.", "",
-             f"Machine: {m['cpu_count']} CPUs ({m['cpu_model']}; {m['cpu_affinity']} usable), "
+             f"Machine: {m['cpu_count']} CPUs ({m['cpu_model']}, {isa_summary(m['isa'])}; {m['cpu_affinity']} usable), "
              f"load average at start {m['load_avg_1min']:.2f}, {m['platform']}; Python {m['python']}, "
              f"jax {m['jax']} (backend {m['jax_backend']}, devices {', '.join(m['devices'])}), "
              f"OpenCV {m['opencv']}, Open3D {m['open3d'] or 'not installed'}.", ""]

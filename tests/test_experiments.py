@@ -18,6 +18,7 @@ import pytest
 from jaxvo.camera import LENSES, NO_LENS
 from jaxvo.config import Config, TrackConfig
 from jaxvo.data import data_root
+from jaxvo.runtime.machine import instruction_set
 
 REPO = Path(__file__).resolve().parents[1]
 EXP = REPO / "experiments"
@@ -576,3 +577,16 @@ def test_rerun_lists_the_results_commands_and_stops_at_a_failure(tmp_path, capsy
         rerun.main(["--results", str(md), "--only", "9"])
     with pytest.raises(SystemExit, match="cannot read"):
         rerun.main(["--results", str(tmp_path / "missing.md"), "--list"])
+
+
+def test_result_files_name_the_processor_generation_and_vector_unit():
+    """Machines of one model name ("AMD EPYC") differ in speed and floats; a result file's machine
+    line names the generation and the widest vector unit the instruction set offers."""
+    common = _script("common")
+    assert common.isa_summary("x86_64 family 25 model 17: avx avx2 avx512bw avx512f fma") == \
+        "x86_64 family 25 model 17, AVX-512"
+    assert common.isa_summary("x86_64 family 23 model 49: avx avx2 fma sse4_2") == "x86_64 family 23 model 49, AVX2"
+    assert common.isa_summary("aarch64: asimd") == "aarch64, ASIMD"
+    assert common.isa_summary("arm64") == "arm64"
+    line = next(l for l in common.provenance_md("t", "experiments/speed.py", []) if l.startswith("Machine:"))
+    assert common.isa_summary(instruction_set()) in line
