@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import pytest
 
@@ -46,7 +47,7 @@ def _recorded(text: str, field: str) -> dict:
     return json.loads(line.split(":", 1)[1])
 
 
-def pinned_folder(here: dict, folders) -> Path:
+def pinned_folder(here: dict, folders) -> Optional[Path]:
     """The folder of ``folders`` whose files were written on a machine like ``here`` (every field
     of MATCHED equal): one whose files record an ``isa`` first, else one written before the
     instruction set was recorded whose other fields match; None if none is."""
