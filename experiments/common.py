@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Dict, Iterable, List, Optional, Sequence
+from typing import Callable, Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -401,6 +401,14 @@ def groundtruth_at(seq: datasets.TumSequence):
     return seq.timestamps[mask], T[mask], mask
 
 
+def pose_error(T_est, T_gt) -> Tuple[float, float]:
+    """(metres, degrees): the translation and rotation angle of ``inv(T_gt) @ T_est``, the error
+    of an estimated relative pose against the ground truth's (both (4, 4), same convention)."""
+    from jaxvo import geometry
+    E = geometry.inverse(np.asarray(T_gt, np.float64)) @ np.asarray(T_est, np.float64)
+    return float(np.linalg.norm(E[:3, 3])), float(np.degrees(geometry.rotation_angle(E[:3, :3])))
+
+
 def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray]:
     """Per consecutive pair: translational (m) and rotational (deg) error of ``T_cur_ref``
     against ground truth ``inv(T_world_cur) @ T_world_ref`` (NaN where a frame lacks ground truth)."""
@@ -413,10 +421,7 @@ def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray
     mask, T = g
     for k in range(P):
         if mask[k] and mask[k + 1]:
-            gt = geometry.inverse(T[k + 1]) @ T[k]
-            E = geometry.inverse(gt) @ np.asarray(relative[k])
-            t_err[k] = float(np.linalg.norm(E[:3, 3]))
-            r_err[k] = float(np.degrees(geometry.rotation_angle(E[:3, :3])))
+            t_err[k], r_err[k] = pose_error(relative[k], geometry.inverse(T[k + 1]) @ T[k])
     return {"trans": t_err, "rot": r_err}
 
 

@@ -32,7 +32,7 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
-DIAGNOSTICS = ("exposure", "levers", "map_poses", "mask_limits", "pair_floor", "variants")
+DIAGNOSTICS = ("error_stretches", "exposure", "levers", "map_poses", "mask_limits", "pair_floor", "variants")
 
 
 def _script(name):
@@ -50,7 +50,7 @@ def cache(tmp_path_factory):
 
 
 @pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile",
-                                  "hindsight_masks", "pair_floor"])
+                                  "hindsight_masks", "pair_floor", "error_stretches"])
 def test_help(name):
     command = ["-m", f"experiments.diagnostics.{name}"] if name in DIAGNOSTICS else [str(EXP / f"{name}.py")]
     r = subprocess.run([sys.executable, *command, "--help"], capture_output=True, text=True, timeout=120, cwd=REPO)
@@ -352,6 +352,41 @@ def test_pair_floor_quick(tmp_path):
         _script("pair_floor").main(["--stretches", '{"still": ["bonn/rgbd_bonn_crowd", 5, 5]}'])
     with pytest.raises(SystemExit, match="--config: .*finest_levl"):
         _script("pair_floor").main(["--config", '{"finest_levl": 3}'])
+
+
+def test_error_stretches_finds_the_stretch_that_holds_a_jump():
+    """A trajectory that follows the ground truth except for one 5 cm jump between frames 12 and 13:
+    only the stretch holding it errs, by the jump; the next stretch starts at the last frame of one."""
+    from jaxvo import geometry
+
+    es = _script("error_stretches")
+    rng = np.random.default_rng(0)
+    G = np.stack([geometry.exp(np.concatenate([0.01 * k * np.ones(3), [0.02 * k, 0.0, 0.005 * k]]))
+                  for k in range(25)]).astype(np.float64)
+    G = np.einsum("ij,njk->nik", geometry.exp(rng.normal(size=6)), G)      # anywhere in the world
+    jump = np.eye(4)
+    jump[:3, 3] = [0.05, 0.0, 0.0]
+    P = np.stack([G[k] if k <= 12 else jump @ G[k] for k in range(25)])  # a 5 cm step of the world
+    rows = es.stretch_errors(P, G, 10)
+    assert [(r["first"], r["last"]) for r in rows] == [(0, 10), (10, 20), (20, 24)]
+    assert rows[0]["err_mm"] < 1e-6 and rows[2]["err_mm"] < 1e-6
+    assert abs(rows[1]["err_mm"] - 50.0) < 1e-6 and rows[1]["err_deg"] < 1e-6
+    assert abs(rows[1]["gt_mm"] - 1000 * np.linalg.norm((geometry.inverse(G[10]) @ G[20])[:3, 3])) < 1e-9
+
+
+def test_error_stretches_quick(tmp_path):
+    """error_stretches.py on the first Bonn frames: a row per stretch with the static share and
+    inlier ratio of its frames, the worst frames, and a bad option stops with its name."""
+    _require(DYNAMIC)
+    out = tmp_path / "es.md"
+    data = _script("error_stretches").main(["--quick", "--seeds", "0,1", "--worst", "3", "--out", str(out)])
+    assert [(r["first"], r["last"]) for r in data["stretches"]] == [(0, 4), (4, 8), (8, 11)]
+    assert all(0 <= r["err_mm"] < 50 and 0.5 < r["static"] <= 1 and 0 < r["inliers"] <= 1
+               for r in data["stretches"])
+    assert len(data["worst"]) == 6 and {w["seed"] for w in data["worst"]} == {0, 1}
+    assert "## Stretches of 4 frames" in out.read_text() and out.with_suffix(".json").is_file()
+    with pytest.raises(SystemExit):
+        _script("error_stretches").main(["--policy", '{"windw": 2}'])
 
 
 def test_levers_variants_take_json_lists_and_name_a_bad_field():

@@ -122,9 +122,7 @@ def pair_errors(relative: np.ndarray, G: np.ndarray) -> Dict[str, np.ndarray]:
     out = {k: np.zeros(len(relative)) for k in ("trans", "rot", "gt_trans", "gt_rot")}
     for k, T in enumerate(relative):
         gt = geometry.inverse(G[k + 1]) @ G[k]
-        E = geometry.inverse(gt) @ np.asarray(T, np.float64)
-        out["trans"][k] = np.linalg.norm(E[:3, 3])
-        out["rot"][k] = np.degrees(geometry.rotation_angle(E[:3, :3]))
+        out["trans"][k], out["rot"][k] = common.pose_error(T, gt)
         out["gt_trans"][k] = np.linalg.norm(gt[:3, 3])
         out["gt_rot"][k] = np.degrees(geometry.rotation_angle(gt[:3, :3]))
     return out
