@@ -273,6 +273,10 @@ class TrackConfig(NamedTuple):
     #: estimates of a new keyframe against the window's older keyframes assume, which sets how
     #: many hypotheses they draw; None: ``Config.w``. docs/decisions/window.md.
     window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
+    #: With window > 1 and the segmentation: where the reference's static mask trusts under this
+    #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
+    #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.
+    second_opinion: Annotated[float, real(0, 1)] = 0.0
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

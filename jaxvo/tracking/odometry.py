@@ -55,6 +55,20 @@ class TrackStep(NamedTuple):
 #: their poses lie within this fraction of the per-frame step limits (TrackConfig.max_step,
 #: max_step_deg) of each other (Odometry._agreeing).
 AGREEMENT = 0.25
+#: TrackConfig.second_opinion asks the window's next-older keyframe only where that keyframe's
+#: static mask trusts at least this much more of its pixels than the reference's
+#: (Odometry._second_opinion): a keyframe that sees no more of the static scene adds no evidence.
+SECOND_MARGIN = 0.1
+
+
+def fuse_poses(P1: np.ndarray, I1: np.ndarray, P2: np.ndarray, I2: np.ndarray) -> np.ndarray:
+    """Two estimates of one pose fused by their information: (4, 4) float64 ``P1 exp(xi)`` with
+    ``xi = (I1 + I2)^-1 I2 log(inv(P1) P2)``, the Gauss-Newton step from P1 of
+    ``|log(inv(P1) P)|^2_I1 + |log(inv(P2) P)|^2_I2`` (right perturbations, twist order (w, v)).
+    P1, P2: (4, 4) poses; I1, I2: (6, 6) information matrices of their right perturbations."""
+    e = np.asarray(geometry.log(geometry.inverse(np.asarray(P1, np.float64)) @ np.asarray(P2, np.float64)), np.float64)
+    xi = np.linalg.solve(np.asarray(I1, np.float64) + np.asarray(I2, np.float64), np.asarray(I2, np.float64) @ e)
+    return np.asarray(P1, np.float64) @ np.asarray(geometry.exp(xi), np.float64)
 
 
 def _within(T: np.ndarray, metres: float, degrees: float) -> bool:
@@ -228,6 +242,8 @@ class Odometry:
         # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)
         extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
         judged = self._judge(est, T_ref_prev, weights, extra)
+        if judged.valid and policy.second_opinion > 0 and policy.window > 1 and weights is not None:
+            est, judged = self._second_opinion(pair, est, judged, extra)
         if not judged.valid and policy.retry:
             est, judged = self._retry(pair, est, judged, extra)
         used = ref
@@ -252,6 +268,44 @@ class Odometry:
             T = geometry.inverse(pose) @ T_world_ref
         self._maybe_switch(j, T, ratio_static, dynamic)
         return result
+
+    def _second_opinion(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
+        """(estimate, judgement) of a frame whose valid estimate rests on a reference that trusts
+        under ``TrackConfig.second_opinion`` of its pixels (``TrackConfig.second_opinion``): the
+        frame is also estimated against the window's next-older keyframe, from its guess and with
+        that keyframe's static weights, where that keyframe trusts at least ``SECOND_MARGIN`` more
+        of its pixels. Where that estimate stays within the step limits of the guess (its failure
+        flag is not asked: with people over most of the view it fails right estimates), the two
+        poses of the frame are fused by the estimates' information matrices and the reference's
+        estimate takes the fused pose (judged again); else both are returned as they were.
+
+        Both information matrices are of a left perturbation of ``T_cur_ref``, i.e. of a right
+        perturbation of ``T_world_cur`` (``T_world_ref inv(T_cur_ref)``), in the same frame: the
+        fused pose is ``P1 exp(xi)``, ``xi = (I1 + I2)^-1 I2 log(inv(P1) P2)``, the Gauss-Newton
+        step of the sum of the two quadratic costs from P1 (docs/decisions/second-opinion.md)."""
+        j, ref, policy = len(self.poses), self._ref, self.policy
+        shape = pair.cur.depth.shape
+        share = float(np.mean(self.static_map.static_mask(pair.trust, shape)))
+        older = [k for k in reversed(self._window) if k != ref and k in self._key_trust]
+        if share >= policy.second_opinion or not older:
+            return est, judged
+        k = older[0]
+        trust, calm = self._key_trust[k]
+        if float(np.mean(self.static_map.static_mask(trust, shape))) < share + SECOND_MARGIN:
+            return est, judged
+        guess = self._chain_pose(ref) @ pair.T_ref_prev        # T_world_guess: the previous frame's pose
+        T_k_prev = geometry.inverse(self._chain_pose(k)) @ guess
+        key = jax.random.fold_in(jax.random.fold_in(pair.key, 5), 0)   # apart from the frame's other keys
+        other = self._estimate("second opinion", k, j, key, geometry.inverse(T_k_prev), None if calm else trust)
+        judged_other = self._judge(other, T_k_prev, trust, extra)
+        infos = [np.asarray(e.information, np.float64) for e in (est, other)]
+        if not (all(np.all(np.isfinite(I)) for I in infos)
+                and _within(judged_other.T @ T_k_prev, policy.max_step + extra[0], policy.max_step_deg + extra[1])):
+            return est, judged
+        fused = fuse_poses(self._chain_pose(ref) @ geometry.inverse(judged.T), infos[0],   # T_world_cur, each way
+                           self._chain_pose(k) @ geometry.inverse(judged_other.T), infos[1])
+        est = est._replace(T_cur_ref=np.asarray(geometry.inverse(fused) @ self._chain_pose(ref), np.float32))
+        return est, self._judge(est, pair.T_ref_prev, pair.trust, extra)
 
     def _recover(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
         """(reference, estimate, judgement) for a frame whose estimate against the reference failed

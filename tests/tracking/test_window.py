@@ -109,6 +109,27 @@ def test_refine_compiles_once_per_window_size():
     assert window._refine.traces - before <= 1
 
 
+def test_fuse_poses_is_the_information_weighted_step_between_two_estimates():
+    """odometry.fuse_poses: equal information gives the geodesic midpoint; in general the step
+    zeroes the gradient of the two quadratic costs linearised at P1 (I1 xi + I2 (xi - e) = 0),
+    checked against scipy's matrix logarithm; overwhelming information on one side gives that side."""
+    from jaxvo.tracking.odometry import fuse_poses
+
+    rng = np.random.default_rng(4)
+    P1 = geometry.exp(rng.normal(0, 0.5, 6))
+    P2 = P1 @ geometry.exp(np.r_[rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3)])
+    e_hat = scipy.linalg.logm(np.linalg.inv(P1) @ P2).real            # hat(e), independent of geometry.log
+    e = np.r_[e_hat[2, 1], e_hat[0, 2], e_hat[1, 0], e_hat[:3, 3]]
+    I = np.diag(rng.uniform(1, 10, 6))
+    np.testing.assert_allclose(fuse_poses(P1, I, P2, I), P1 @ scipy.linalg.expm(e_hat / 2), atol=1e-9)
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    I1, I2 = A @ A.T + np.eye(6), B @ B.T + np.eye(6)
+    xi_hat = scipy.linalg.logm(np.linalg.inv(P1) @ fuse_poses(P1, I1, P2, I2)).real
+    xi = np.r_[xi_hat[2, 1], xi_hat[0, 2], xi_hat[1, 0], xi_hat[:3, 3]]
+    np.testing.assert_allclose(I1 @ xi + I2 @ (xi - e), 0.0, atol=1e-9)
+    np.testing.assert_allclose(fuse_poses(P1, np.eye(6), P2, 1e9 * np.eye(6)), P2, atol=1e-8)
+
+
 # ----------------------------------------------------------------------------- odometry
 
 CAM = camera_for_size(DEFAULT, 160, 120)
