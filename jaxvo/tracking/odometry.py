@@ -242,8 +242,10 @@ class Odometry:
         # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)
         extra = self._stale_allowance() if policy.catch_up and self.config.method == "ransac" else (0.0, 0.0)
         judged = self._judge(est, T_ref_prev, weights, extra)
+        ref_mask = None     # the reference's static mask on the host, made once (it is returned below)
         if judged.valid and policy.second_opinion > 0 and policy.window > 1 and weights is not None:
-            est, judged = self._second_opinion(pair, est, judged, extra)
+            ref_mask = self.static_map.static_mask(weights, frame.depth.shape)
+            est, judged = self._second_opinion(pair, est, judged, extra, float(np.mean(ref_mask)))
         if not judged.valid and policy.retry:
             est, judged = self._retry(pair, est, judged, extra)
         used = ref
@@ -259,8 +261,9 @@ class Odometry:
             self._chained.clear()
             self._rel[j] = T
             self._info[j] = est.information
-        static_mask = self.static_map.static_mask(weights if used == ref else self._key_trust[used][0],
-                                                  frame.depth.shape)
+        static_mask = (ref_mask if ref_mask is not None and used == ref else
+                       self.static_map.static_mask(weights if used == ref else self._key_trust[used][0],
+                                                   frame.depth.shape))
         if valid and used == ref:  # the current frame's view of the reference, at the estimated pose
             self.static_map.update(est, ref, j, T)
         result = TrackStep(j, used, est, pose, valid, static_mask)
@@ -269,7 +272,7 @@ class Odometry:
         self._maybe_switch(j, T, ratio_static, dynamic)
         return result
 
-    def _second_opinion(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra):
+    def _second_opinion(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra, share: float):
         """(estimate, judgement) of a frame whose valid estimate rests on a reference that trusts
         under ``TrackConfig.second_opinion`` of its pixels (``TrackConfig.second_opinion``): the
         frame is also estimated against the window's next-older keyframe, from its guess and with
@@ -277,7 +280,8 @@ class Odometry:
         of its pixels. Where that estimate stays within the step limits of the guess (its failure
         flag is not asked: with people over most of the view it fails right estimates), the two
         poses of the frame are fused by the estimates' information matrices and the reference's
-        estimate takes the fused pose (judged again); else both are returned as they were.
+        estimate takes the fused pose (judged again); else both are returned as they were. share:
+        the share of the reference's pixels its static mask (``pair.trust``) trusts.
 
         Both information matrices are of a left perturbation of ``T_cur_ref``, i.e. of a right
         perturbation of ``T_world_cur`` (``T_world_ref inv(T_cur_ref)``), in the same frame: the
@@ -285,7 +289,6 @@ class Odometry:
         step of the sum of the two quadratic costs from P1 (docs/decisions/second-opinion.md)."""
         j, ref, policy = len(self.poses), self._ref, self.policy
         shape = pair.cur.depth.shape
-        share = float(np.mean(self.static_map.static_mask(pair.trust, shape)))
         older = [k for k in reversed(self._window) if k != ref and k in self._key_trust]
         if share >= policy.second_opinion or not older:
             return est, judged
