@@ -274,8 +274,7 @@ class Odometry:
 
     def _second_opinion(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra, share: float):
         """(estimate, judgement) of a frame whose valid estimate rests on a reference that trusts
-        under ``TrackConfig.second_opinion`` of its pixels (``TrackConfig.second_opinion``): the
-        frame is also estimated against the window's next-older keyframe, from its guess and with
+        under ``TrackConfig.second_opinion`` of its pixels: the frame is also estimated against the window's next-older keyframe, from its guess and with
         that keyframe's static weights, where that keyframe trusts at least ``SECOND_MARGIN`` more
         of its pixels. Where that estimate stays within the step limits of the guess (its failure
         flag is not asked: with people over most of the view it fails right estimates), the two
