@@ -19,6 +19,7 @@ Example::
     python experiments/drift.py                                   # 900 frames, seeds 0-11
     python experiments/drift.py --frames 120 --seeds 0 --out /tmp/drift.md
     python experiments/drift.py --augment ../shared/data/tum/rgbd_dataset_freiburg2_desk --frames 0
+    python experiments/drift.py --policy '{"second_opinion": 0}'   # a TrackConfig field changed in both
 """
 from __future__ import annotations
 
@@ -49,8 +50,16 @@ def parse_args(argv=None):
     ap.add_argument("--augment", nargs="*", default=[], help="real static TUM sequences to augment with persons")
     ap.add_argument("--persons", type=int, default=2, help="persons composited into each augmented sequence")
     ap.add_argument("--jobs", type=int, default=1, help="parallel processes (each one CPU thread)")
+    ap.add_argument("--policy", default=None,
+                    help="JSON object of jaxvo.TrackConfig fields changed in both trackings (the single reference "
+                         "is the same with window 1), e.g. '{\"second_opinion\": 0}'")
     ap.add_argument("--out", default=str(common.RESULTS / "drift" / "drift.md"), help="markdown output (JSON beside)")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    try:
+        _policies(args.policy)
+    except (TypeError, ValueError) as e:
+        ap.error(f"--policy: {e}")
+    return args
 
 
 def _single_thread():
@@ -59,9 +68,13 @@ def _single_thread():
                                + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1").strip()
 
 
-def _policies():
+def _policies(changes=None):
+    """{"window": TrackConfig() with ``changes`` (a JSON object of its fields, or None), "single": the
+    same with window 1}; ValueError naming a bad field or value."""
     from jaxvo.config import TrackConfig
-    return {"window": TrackConfig(), "single": TrackConfig(window=1)}
+    window = TrackConfig.from_json(changes) if changes else TrackConfig()
+    window.validate()
+    return {"window": window, "single": window._replace(window=1)}
 
 
 def drift_stats(stamps, gt, est):
@@ -82,12 +95,13 @@ def drift_stats(stamps, gt, est):
     return out
 
 
-def _track_all(frames, camera, seed):
-    """{policy: (poses (N, 4, 4), held frames, s per frame after the first 10)} for both policies."""
+def _track_all(frames, camera, seed, changes=None):
+    """{policy: (poses (N, 4, 4), held frames, s per frame after the first 10)} for both policies
+    (:func:`_policies` of ``changes``)."""
     import jax
     from jaxvo.tracking.odometry import Odometry
     out = {}
-    for name, policy in _policies().items():
+    for name, policy in _policies(changes).items():
         odo = Odometry(camera, key=jax.random.PRNGKey(seed), policy=policy)
         t0 = None
         for i, f in enumerate(frames):
@@ -101,7 +115,7 @@ def _track_all(frames, camera, seed):
 
 def run_crowd(job):
     """One seed of the synthetic crowd: rows for both policies."""
-    seed, frames, size = job
+    seed, frames, size, changes = job
     _single_thread()
     from jaxvo.camera import DEFAULT, camera_for_size
     from jaxvo.frame import make_frame
@@ -116,7 +130,7 @@ def run_crowd(job):
         imgs.append(make_frame(r.rgb, r.depth))
         covered.append(float(r.moving_mask.mean()))
     rows = []
-    for name, (P, held, dt) in _track_all(imgs, camera, seed).items():
+    for name, (P, held, dt) in _track_all(imgs, camera, seed, changes).items():
         rows.append({"data": f"synthetic crowd {frames} frames {size}", "seed": seed, "policy": name, "held": held,
                      "ms_per_frame": 1000 * dt, "moving_max": max(covered), "moving_mean": float(np.mean(covered)),
                      **drift_stats(seq.timestamps, seq.poses, P)})
@@ -125,14 +139,14 @@ def run_crowd(job):
 
 def run_augmented(job):
     """One seed of a dynamic augmentation of a real recording: rows for both policies."""
-    real, seed, persons = job
+    real, seed, persons, changes = job
     _single_thread()
     aug = common.augmented_sequence(real, persons=persons, seed=seed)
     seq = common.open_sequence(aug)
     frames = common.load_frames(seq)
     stamps, G, mask = common.groundtruth_at(seq)
     rows = []
-    for name, (P, held, dt) in _track_all(frames, seq.camera, seed).items():
+    for name, (P, held, dt) in _track_all(frames, seq.camera, seed, changes).items():
         rows.append({"data": f"{common.short_name(real)} + {persons} persons", "seed": seed, "policy": name,
                      "held": held, "ms_per_frame": 1000 * dt, **drift_stats(stamps, G, P[mask])})
     return rows
@@ -168,8 +182,8 @@ def summary_md(rows):
 def main(argv=None):
     args = parse_args(argv)
     seeds = common.int_list(args.seeds)
-    jobs = [(run_crowd, (s, args.frames, args.size)) for s in seeds if args.frames > 0]
-    jobs += [(run_augmented, (str(Path(r)), s, args.persons)) for r in args.augment for s in seeds]
+    jobs = [(run_crowd, (s, args.frames, args.size, args.policy)) for s in seeds if args.frames > 0]
+    jobs += [(run_augmented, (str(Path(r)), s, args.persons, args.policy)) for r in args.augment for s in seeds]
     t0 = time.time()
     if args.jobs > 1:
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:

@@ -276,7 +276,7 @@ class TrackConfig(NamedTuple):
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.
-    second_opinion: Annotated[float, real(0, 1)] = 0.0
+    second_opinion: Annotated[float, real(0, 1)] = 0.45
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

@@ -625,3 +625,26 @@ def test_result_files_name_the_processor_generation_and_vector_unit():
     assert common.isa_summary("arm64") == "arm64"
     line = next(l for l in common.provenance_md("t", "experiments/speed.py", []) if l.startswith("Machine:"))
     assert common.isa_summary(instruction_set()) in line
+
+
+def test_drift_quick_with_a_policy_change(tmp_path):
+    """drift.py on a short synthetic crowd: both trackings' rows, the --policy change applied to both
+    (the single reference keeps window 1), and a bad field named in one line."""
+    drift = _script("drift")
+    window, single = drift._policies('{"second_opinion": 0}').values()
+    assert window.second_opinion == 0 and single.second_opinion == 0 and single.window == 1 and window.window > 1
+    out = tmp_path / "drift.md"
+    drift.main(["--frames", "40", "--size", "160x120", "--seeds", "0", "--policy", '{"second_opinion": 0}',
+                "--out", str(out)])
+    text = out.read_text()
+    assert "--policy" in text and "| synthetic crowd 40 frames 160x120 | window | 1 |" in text
+    assert "| synthetic crowd 40 frames 160x120 | single | 1 |" in text
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert {r["policy"] for r in rows} == {"window", "single"} and all(np.isfinite(r["ate"]) for r in rows)
+
+
+def test_drift_policy_is_checked(capsys):
+    with pytest.raises(SystemExit) as e:
+        _script("drift").main(["--frames", "12", "--policy", '{"second_opinon": 0}'])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--policy" in err and "second_opinion" in err

@@ -161,10 +161,11 @@ def test_fr2_desk_with_persons_default_flags_them_and_beats_pairwise_ransac(fr2_
 
 
 def test_second_opinion_fuses_where_people_cover_the_reference(bonn_crowd):
-    """TrackConfig.second_opinion on the Bonn crowd excerpt: where the people walking ahead of the
-    camera cover most of the references (frames 110-130), a few frames are estimated against the
-    window's next-older keyframe too; none before the people come, and the track ends no worse.
-    Measured here (seed 0, 2-core AMD EPYC): 3 such frames, ATE 0.0221 against 0.0255 m."""
+    """TrackConfig.second_opinion (on by default) on the Bonn crowd excerpt: where the people walking
+    ahead of the camera cover most of the references (frames 110-130), a few frames are estimated
+    against the window's next-older keyframe too; none before the people come, none with it off,
+    and the track ends no worse than with it off. Measured here (seed 0, 2-core AMD EPYC with
+    AVX-512): 3 such frames, ATE 0.0221 against 0.0255 m."""
     from jaxvo.config import TrackConfig
     from jaxvo.evaluation.metrics import ate
     from jaxvo.tracking.odometry import Odometry
@@ -178,12 +179,12 @@ def test_second_opinion_fuses_where_people_cover_the_reference(bonn_crowd):
     frames = [bonn_crowd.frame(i) for i in range(len(bonn_crowd))]
     gt_t, gt_T = bonn_crowd.groundtruth
     result = {}
-    for so in (0.0, 0.35):
-        odo = Asking(bonn_crowd.camera, Config(), key=jax.random.key(0), policy=TrackConfig(second_opinion=so))
+    for name, policy in (("off", TrackConfig(second_opinion=0.0)), ("default", TrackConfig())):
+        odo = Asking(bonn_crowd.camera, Config(), key=jax.random.key(0), policy=policy)
         odo.asked = []
         for f in frames:
             odo.add(f)
-        result[so] = (ate(gt_t, gt_T, bonn_crowd.timestamps, np.stack(odo.poses)).rmse, odo.asked)
-    assert result[0.0][1] == []
-    assert 1 <= len(result[0.35][1]) <= 10 and min(result[0.35][1]) > 60, result[0.35][1]
-    assert result[0.35][0] <= result[0.0][0] + 0.002, (result[0.35][0], result[0.0][0])
+        result[name] = (ate(gt_t, gt_T, bonn_crowd.timestamps, np.stack(odo.poses)).rmse, odo.asked)
+    assert TrackConfig().second_opinion > 0 and result["off"][1] == []
+    assert 1 <= len(result["default"][1]) <= 15 and min(result["default"][1]) > 60, result["default"][1]
+    assert result["default"][0] <= result["off"][0] + 0.002, (result["default"][0], result["off"][0])
