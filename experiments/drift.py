@@ -62,10 +62,15 @@ def parse_args(argv=None):
     return args
 
 
+SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false"
+
+
 def _single_thread():
-    """Each worker one CPU thread, so that --jobs processes share the cores evenly."""
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                               + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1").strip()
+    """One CPU thread for XLA in this process, so that --jobs processes share the cores evenly.
+    XLA reads the flag when JAX starts its backend, so this is called only where that has not
+    happened yet: in a spawned worker, and in the script's own process before ``main``. (A token
+    without ``--`` in XLA_FLAGS silently ends the parsing, so every flag here is well formed.)"""
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SINGLE_THREAD).strip()
 
 
 def _policies(changes=None):
@@ -116,7 +121,6 @@ def _track_all(frames, camera, seed, changes=None):
 def run_crowd(job):
     """One seed of the synthetic crowd: rows for both policies."""
     seed, frames, size, changes = job
-    _single_thread()
     from jaxvo.camera import DEFAULT, camera_for_size
     from jaxvo.frame import make_frame
     from jaxvo.synthetic import SensorModel, make_sequence
@@ -140,7 +144,6 @@ def run_crowd(job):
 def run_augmented(job):
     """One seed of a dynamic augmentation of a real recording: rows for both policies."""
     real, seed, persons, changes = job
-    _single_thread()
     aug = common.augmented_sequence(real, persons=persons, seed=seed)
     seq = common.open_sequence(aug)
     frames = common.load_frames(seq)
@@ -186,7 +189,7 @@ def main(argv=None):
     jobs += [(run_augmented, (str(Path(r)), s, args.persons, args.policy)) for r in args.augment for s in seeds]
     t0 = time.time()
     if args.jobs > 1:
-        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+        with multiprocessing.get_context("spawn").Pool(args.jobs, initializer=_single_thread) as pool:
             results = [pool.apply_async(f, (a,)) for f, a in jobs]
             rows = [row for res in results for row in res.get()]
     else:
@@ -203,4 +206,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    _single_thread()
     main()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -634,6 +635,7 @@ def test_drift_quick_with_a_policy_change(tmp_path):
     window, single = drift._policies('{"second_opinion": 0}').values()
     assert window.second_opinion == 0 and single.second_opinion == 0 and single.window == 1 and window.window > 1
     out = tmp_path / "drift.md"
+    flags = os.environ.get("XLA_FLAGS")
     drift.main(["--frames", "40", "--size", "160x120", "--seeds", "0", "--policy", '{"second_opinion": 0}',
                 "--out", str(out)])
     text = out.read_text()
@@ -641,6 +643,8 @@ def test_drift_quick_with_a_policy_change(tmp_path):
     assert "| synthetic crowd 40 frames 160x120 | single | 1 |" in text
     rows = json.loads(out.with_suffix(".json").read_text())["rows"]
     assert {r["policy"] for r in rows} == {"window", "single"} and all(np.isfinite(r["ate"]) for r in rows)
+    # the single-thread flag is for the script's own process and its workers, not its caller's
+    assert os.environ.get("XLA_FLAGS") == flags
 
 
 def test_drift_policy_is_checked(capsys):

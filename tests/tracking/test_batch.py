@@ -134,8 +134,8 @@ def test_batch_spreads_over_several_devices(frames, tmp_path):
 
     npz = tmp_path / "frames.npz"
     np.savez(npz, intensity=np.stack([f.intensity for f in frames]), depth=np.stack([f.depth for f in frames]))
-    env = {**os.environ, "JAX_PLATFORMS": "cpu",
-           "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()}
+    # XLA_FLAGS of its own: flags inherited from the test process could end XLA's parsing early
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     r = subprocess.run([sys.executable, "-c", _TWO_DEVICES, str(npz)], env=env, capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
