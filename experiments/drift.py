@@ -85,12 +85,14 @@ def _policies(changes=None):
 def drift_stats(stamps, gt, est):
     """Drift of the (N, 4, 4) T_world_cam ``est`` against ``gt`` (stamps (N,) s): a dict of the
     whole ATE (m), RPE 1 s (m/s, deg/s), RPE over 100 frames (m, deg) and the mean ATE of the
-    100-frame segments (m)."""
+    100-frame segments (m). A sequence shorter than 1 s has no RPE 1 s, one of at most 100 frames no
+    100-frame figures (their keys are left out, and the summary shows n/a)."""
     from jaxvo.evaluation import metrics
     n = len(stamps)
     out = {"ate": metrics.ate(stamps, gt, stamps, est).stats.rmse}
-    r1 = metrics.rpe(stamps, gt, stamps, est, delta=1.0)
-    out["rpe1s_t"], out["rpe1s_r"] = r1.trans_stats.rmse, r1.rot_stats.rmse
+    if stamps[-1] - stamps[0] >= 1.0:
+        r1 = metrics.rpe(stamps, gt, stamps, est, delta=1.0)
+        out["rpe1s_t"], out["rpe1s_r"] = r1.trans_stats.rmse, r1.rot_stats.rmse
     if n > SEGMENT:
         r = metrics.rpe(stamps, gt, stamps, est, delta=SEGMENT, delta_unit="f")
         out["rpe100_t"], out["rpe100_r"] = r.trans_stats.rmse, r.rot_stats.rmse

@@ -652,3 +652,20 @@ def test_drift_policy_is_checked(capsys):
         _script("drift").main(["--frames", "12", "--policy", '{"second_opinon": 0}'])
     err = capsys.readouterr().err
     assert e.value.code == 2 and "--policy" in err and "second_opinion" in err
+
+
+def test_drift_stats_of_a_short_sequence():
+    """Under 1 s of frames: the ATE, no RPE 1 s (n/a in the summary) rather than an error."""
+    drift = _script("drift")
+    stamps = np.arange(20) / 30.0
+    gt = np.tile(np.eye(4), (20, 1, 1))
+    gt[:, 0, 3] = 0.01 * np.arange(20)
+    est = gt.copy()
+    est[:, 1, 3] = 0.002 * np.arange(20)
+    stats = drift.drift_stats(stamps, gt, est)
+    assert set(stats) == {"ate"} and 0 < stats["ate"] < 0.02
+    md = drift.summary_md([{"data": "d", "seed": 0, "policy": p, "held": 0, **stats} for p in ("window", "single")])
+    assert "| d | window | 1 | " in "\n".join(md) and "n/a" in "\n".join(md)
+    longer = np.arange(40) / 30.0
+    gt40 = np.tile(np.eye(4), (40, 1, 1))
+    assert {"ate", "rpe1s_t", "rpe1s_r"} == set(drift.drift_stats(longer, gt40, gt40))
