@@ -154,10 +154,13 @@ LENSES = {"fr1": Lens(0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
           "fr2": Lens(0.231222, -0.784899, -0.003257, -0.000105, 0.917205),
           "fr3": NO_LENS, "bonn": Lens(0.039903, -0.099343, -0.000730, -0.000144, 0.0), "default": NO_LENS}
 
-#: Published depth correction ``ds`` of each sensor, from the same calibration as the lenses: the
-#: depth PNGs of TUM fr1 and fr2 read ``ds`` times too far at 1/5000 m, so that PNG value / (5000 ds)
-#: is metres (the readers' ``depth_scale="fr2"``). fr3, Bonn and any other sensor: 1, none published.
-DEPTH_CORRECTIONS = {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "bonn": 1.0, "default": 1.0}
+#: Published depth correction ``ds`` of each sensor: PNG value / (layout scale x ``ds``) is metres
+#: (the readers' ``depth_scale="fr2"``). TUM fr1 and fr2: ``ds`` from the same calibration as the
+#: lenses (their depth reads ``ds`` times too far at 1/5000 m). Bonn: the published marker-to-camera
+#: calibration ``T_m`` (:data:`jaxvo.data.groundtruth.T_M_BONN`) has a 3x3 block of 1.0593 x a
+#: rotation, so a camera point times 1.0593 is the motion capture's metres: the depth reads 1.0593
+#: times too near, ``ds`` = 1 / 1.0593. fr3 and any other sensor: 1, none published.
+DEPTH_CORRECTIONS = {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "bonn": 1 / 1.0593, "default": 1.0}
 
 
 def preset_for_sequence(name: str) -> str:

@@ -331,6 +331,9 @@ def test_bonn_crowd_160_frames_end_to_end(tmp_path, jaxvo_run):
     if not BONN_CROWD.is_dir():
         pytest.skip(f"Bonn data not found: {BONN_CROWD} (set JAXVO_DATA to the data root)")
     default = _run_and_eval(tmp_path, jaxvo_run, BONN_CROWD, "default", "--seed", 0)   # also pinned by test_bitwise.py
+    # read as recorded; the run line names the correction of the dataset's own calibration
+    assert "depth scale 5000 (bonn publishes a depth correction: --depth-scale bonn)" in \
+        jaxvo_run(BONN_CROWD, "--seed", 0)[0].output
     f2f = _run_and_eval(tmp_path, jaxvo_run, BONN_CROWD, "f2f", "--seed", 0, "--frame-to-frame")
     print("default", default, "frame to frame", f2f)
     # measured 2026-11-26 (2-core Xeon): this run 0.027 m/s, 0.67 deg/s, ATE 0.026 m against frame

@@ -123,6 +123,22 @@ def test_real_sequence_undistorted_with_its_published_lens():
     assert not np.array_equal(f.depth, g.depth) and f.depth[0, 0] == 0
 
 
+def test_bonn_depth_correction_is_the_scale_of_its_published_marker_calibration(tmp_path):
+    """Bonn's correction is 1 / the scale of T_m's 3x3 block (its three singular values, equal to
+    1e-4): a camera point times that scale is the motion capture's metres, so the depth PNGs of a
+    rgbd_bonn_* folder read with depth_scale="bonn" are 5000 / 1.0593 per metre."""
+    from jaxvo.data.groundtruth import T_M_BONN
+    sv = np.linalg.svd(T_M_BONN[:3, :3], compute_uv=False)
+    assert np.ptp(sv) < 2e-4
+    assert abs(DEPTH_CORRECTIONS["bonn"] - 1 / sv.mean()) < 1e-4
+    d = make_seq(tmp_path, name="rgbd_bonn_fake", n=2)
+    assert depth_correction_for_sequence(d.name) == DEPTH_CORRECTIONS["bonn"]
+    s = TumSequence(d, camera=SMALL, depth_scale="bonn")
+    assert s.depth_scale == pytest.approx(5000 / 1.0593)
+    raw = cv2.imread(str(s.depth_paths[0]), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_allclose(s.frame(0).depth, raw * 1.0593 / 5000, rtol=1e-6)
+
+
 def test_a_sensor_name_as_depth_scale_applies_its_published_correction(tmp_path):
     """depth_scale="fr2": the layout's 5000 times TUM's fr2 correction 1.031, so every depth is the
     PNG value / 5155 m (read independently with OpenCV); a sensor without a published correction
@@ -134,7 +150,7 @@ def test_a_sensor_name_as_depth_scale_applies_its_published_correction(tmp_path)
     raw = cv2.imread(str(s.depth_paths[0]), cv2.IMREAD_UNCHANGED)
     assert raw.dtype == np.uint16 and raw.any()
     np.testing.assert_array_equal(s.frame(0).depth, (raw / 5155.0).astype(np.float32))
-    assert TumSequence(d, camera=SMALL, depth_scale="bonn").depth_scale == TumSequence(d, camera=SMALL).depth_scale
+    assert TumSequence(d, camera=SMALL, depth_scale="fr3").depth_scale == TumSequence(d, camera=SMALL).depth_scale
     with pytest.raises(ValueError, match=r"depth_scale must be a number > 0, a sensor .*fr1, fr2.*'fr9'"):
         TumSequence(d, camera=SMALL, depth_scale="fr9")
 
