@@ -271,12 +271,19 @@ class TrackConfig(NamedTuple):
     recover: Annotated[bool, flag()] = True
     #: With window > 1 and RANSAC: the outlier fraction (``Config.w``, in [0, 1)) that the
     #: estimates of a new keyframe against the window's older keyframes assume, which sets how
-    #: many hypotheses they draw; None: ``Config.w``. docs/decisions/window.md.
-    window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
+    #: many hypotheses they draw; None: as the other estimates (``outliers``, else ``Config.w``).
+    #: docs/decisions/window.md.
+    window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="as outliers")] = None
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.
     second_opinion: Annotated[float, real(0, 1)] = 0.45
+    #: With the segmentation (``segment``) and RANSAC: the outlier fraction (``Config.w``, in
+    #: [0, 1)) that every estimate of the tracking assumes, which sets how many hypotheses it
+    #: draws. The map's static weights leave out of the samples what it saw move, and in the calm
+    #: mode it saw nothing move, so fewer samples are outliers than in a pair alone; None:
+    #: ``Config.w``. docs/decisions/hypothesis-count.md.
+    outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = 0.2
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

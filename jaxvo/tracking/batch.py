@@ -94,7 +94,7 @@ def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config
     if not (len(cameras) == len(keys) == len(callbacks) == n):
         raise ValueError("track_batch needs one camera, key and callback per sequence")
     odos = [Odometry(c, config, k, policy) for c, k in zip(cameras, keys)]
-    config = odos[0].config if n else config
+    config = odos[0].estimate_config if n else config
     iters = [iter(s) for s in sequences]
     active = list(range(n))
     size = batch_size(n)

@@ -76,6 +76,15 @@ def _within(T: np.ndarray, metres: float, degrees: float) -> bool:
     return bool(np.linalg.norm(T[:3, 3]) <= metres and geometry.rotation_angle(T[:3, :3]) <= np.radians(degrees))
 
 
+def _with_outliers(config: Config, outliers: Optional[float]) -> Config:
+    """``config`` with ``Config.w`` = ``outliers`` (None: unchanged). The same compiled program:
+    w is a traced leaf, and an array keeps the config's dtype, so the program's signature stays."""
+    if outliers is None:
+        return config
+    w = config.w
+    return config.replace(w=float(outliers) if isinstance(w, (int, float)) else np.asarray(outliers, np.asarray(w).dtype))
+
+
 def _rigid(T) -> np.ndarray:
     """float64 copy of a float32 estimate with its rotation re-orthonormalised, so that
     chaining thousands of them (and inverting by transpose) stays rigid."""
@@ -151,11 +160,11 @@ class Odometry:
         if not isinstance(self.policy, TrackConfig):
             raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
         self.policy.validate()
-        # the estimates against the window's older keyframes: the same program (Config.w is a
-        # traced leaf; an array keeps the config's dtype, so that the program's signature is the same)
-        w, outliers = self.config.w, self.policy.window_outliers
-        self._window_config = self.config if outliers is None else self.config.replace(
-            w=float(outliers) if isinstance(w, (int, float)) else np.asarray(outliers, np.asarray(w).dtype))
+        #: The Config of the tracking's estimates: ``config`` with ``Config.w`` set to
+        #: ``TrackConfig.outliers`` where the segmentation is on (and that is not None).
+        self.estimate_config = _with_outliers(self.config, self.policy.outliers if self.policy.segment else None)
+        # the estimates against the window's older keyframes (TrackConfig.window_outliers)
+        self._window_config = _with_outliers(self.estimate_config, self.policy.window_outliers)
         self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self.static_map = StaticMap(camera, self.config.max_depth, self.params) if self.policy.segment \
@@ -405,11 +414,11 @@ class Odometry:
 
     def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
         """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
-        and config (for ``purpose`` "window": with ``TrackConfig.window_outliers`` as ``Config.w``),
+        and :attr:`estimate_config` (for ``purpose`` "window": with ``TrackConfig.window_outliers`` as ``Config.w``),
         from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
         estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
         time appended under ``purpose`` (see :attr:`timings`)."""
-        config = self._window_config if purpose == "window" else self.config
+        config = self._window_config if purpose == "window" else self.estimate_config
         if self.timings is None:
             return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, config, key, init=init,
                                    weights=weights)

@@ -13,7 +13,7 @@ import scipy.linalg
 
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT, camera_for_size
-from jaxvo.config import TrackConfig
+from jaxvo.config import Config, TrackConfig
 from jaxvo.estimator import trace_count
 from jaxvo.evaluation import metrics
 from jaxvo.frame import make_frame
@@ -173,34 +173,45 @@ def test_window_is_deterministic_and_compiles_once(crowd):
     assert window._refine.traces == traces                  # no retrace per window update
 
 
-def test_window_outliers_sets_the_window_estimates_hypotheses_in_the_same_program(crowd):
-    """TrackConfig.window_outliers is the Config.w of the estimates against the window's older
-    keyframes only: None and Config().w give the same poses, a small one draws fewer hypotheses
-    there, and neither compiles the estimator again (w is a traced value)."""
+def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crowd):
+    """TrackConfig.outliers is the Config.w of every estimate of the tracking with the segmentation
+    (default 0.2; None: Config.w), TrackConfig.window_outliers that of the estimates against the
+    window's older keyframes only (None: as outliers). Equal values give the same poses, a small
+    one draws fewer hypotheses, and none compiles the estimator again (w is a traced value)."""
     seq, frames = crowd
     drawn = {}
 
     class Recording(Odometry):
         def _estimate(self, purpose, *args):
             est = super()._estimate(purpose, *args)
-            drawn.setdefault((self.policy.window_outliers, purpose), []).append(int(np.asarray(est.hypotheses).sum()))
+            key = (self.policy.outliers, self.policy.window_outliers, purpose)
+            drawn.setdefault(key, []).append(int(np.asarray(est.hypotheses).sum()))
             return est
 
     def run(policy):
         odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
         for f in frames[:40]:
             odo.add(f)
-        return np.stack(odo.poses)
+        return odo
 
     plain = run(TrackConfig())
+    assert plain.config.w == Config().w == 0.3 and plain.estimate_config.w == TrackConfig().outliers == 0.2
+    without = Odometry(CAM, policy=TrackConfig.keyframes())      # no segmentation: Config.w as given
+    assert without.estimate_config is without.config
     traces = trace_count()
-    np.testing.assert_array_equal(run(TrackConfig(window_outliers=0.3)), plain)
+    np.testing.assert_array_equal(np.stack(run(TrackConfig(window_outliers=0.2)).poses), np.stack(plain.poses))
+    np.testing.assert_array_equal(np.stack(run(TrackConfig(outliers=None)).poses),
+                                  np.stack(run(TrackConfig(outliers=0.3)).poses))
     run(TrackConfig(window_outliers=0.01))
+    run(TrackConfig(outliers=0.01))
     assert trace_count() == traces
-    # w = 0.01: k = ceil(log(0.01) / log(1 - 0.99^6)) = 2 per RANSAC level (w = 0.3: 37); 160x120
-    # images have 2 levels
-    assert drawn[(0.01, "window")] and max(drawn[(0.01, "window")]) <= 2 * 2
-    assert sum(drawn[(0.01, "window")]) < sum(drawn[(None, "window")])
+    # w = 0.01: k = ceil(log(0.01) / log(1 - 0.99^6)) = 2 per RANSAC level (w = 0.2: 14, 0.3: 37);
+    # 160x120 images have 2 levels
+    assert drawn[(0.2, 0.01, "window")] and max(drawn[(0.2, 0.01, "window")]) <= 2 * 2
+    assert sum(drawn[(0.2, 0.01, "window")]) < sum(drawn[(0.2, None, "window")])
+    assert max(drawn[(0.2, 0.01, "track")]) > 2 * 2     # the window's setting only
+    assert max(drawn[(0.01, None, "track")]) <= 2 * 2 and max(drawn[(0.01, None, "window")]) <= 2 * 2
+    assert sum(drawn[(0.2, None, "track")]) < sum(drawn[(None, None, "track")])
 
 
 def test_window_drifts_less_than_the_single_reference(crowd):
