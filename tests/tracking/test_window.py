@@ -175,7 +175,7 @@ def test_window_is_deterministic_and_compiles_once(crowd):
 
 def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crowd):
     """TrackConfig.outliers is the Config.w of every estimate of the tracking with the segmentation
-    (default 0.2; None: Config.w), TrackConfig.window_outliers that of the estimates against the
+    (default None: Config.w), TrackConfig.window_outliers that of the estimates against the
     window's older keyframes only (None: as outliers). Equal values give the same poses, a small
     one draws fewer hypotheses, and none compiles the estimator again (w is a traced value)."""
     seq, frames = crowd
@@ -194,15 +194,18 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
             odo.add(f)
         return odo
 
-    plain = run(TrackConfig())
-    assert plain.config.w == Config().w == 0.3 and plain.estimate_config.w == TrackConfig().outliers == 0.2
+    plain = run(TrackConfig(outliers=0.2))
+    assert plain.config.w == Config().w == 0.3 and plain.estimate_config.w == 0.2
+    default = Odometry(CAM)                                       # outliers None: Config.w as given
+    assert TrackConfig().outliers is None and default.estimate_config is default.config
     without = Odometry(CAM, policy=TrackConfig.keyframes())      # no segmentation: Config.w as given
     assert without.estimate_config is without.config
     traces = trace_count()
-    np.testing.assert_array_equal(np.stack(run(TrackConfig(window_outliers=0.2)).poses), np.stack(plain.poses))
+    np.testing.assert_array_equal(np.stack(run(TrackConfig(outliers=0.2, window_outliers=0.2)).poses),
+                                  np.stack(plain.poses))
     np.testing.assert_array_equal(np.stack(run(TrackConfig(outliers=None)).poses),
                                   np.stack(run(TrackConfig(outliers=0.3)).poses))
-    run(TrackConfig(window_outliers=0.01))
+    run(TrackConfig(outliers=0.2, window_outliers=0.01))
     run(TrackConfig(outliers=0.01))
     assert trace_count() == traces
     # w = 0.01: k = ceil(log(0.01) / log(1 - 0.99^6)) = 2 per RANSAC level (w = 0.2: 14, 0.3: 37);
