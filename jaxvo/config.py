@@ -281,8 +281,8 @@ class TrackConfig(NamedTuple):
     #: With the segmentation (``segment``) and RANSAC: the outlier fraction (``Config.w``, in
     #: [0, 1)) that every estimate of the tracking assumes, which sets how many hypotheses it
     #: draws (the map's static weights leave out of the samples what it saw move); None:
-    #: ``Config.w``. 0.2 takes a fifth off the time per frame where people move, at the same mean
-    #: accuracy but worse unlucky seeds. docs/decisions/hypothesis-count.md.
+    #: ``Config.w``. A smaller value is faster where people move and less robust on unlucky
+    #: draws. docs/decisions/hypothesis-count.md.
     outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
 
     @classmethod
