@@ -56,6 +56,11 @@ class Config:
     #: from p, w and n_points (capped by max_hypotheses). docs/decisions/hypothesis-count.md.
     p: Annotated[Any, real(0, 1, lo_open=True, hi_open=True)] = 0.99
     w: Annotated[Any, real(0, 1, hi_open=True)] = 0.3
+    #: True: each level also stops once its draws would have found an all-inlier sample with
+    #: probability p had w been 1 - the best hypothesis's inlier ratio so far (adaptive RANSAC,
+    #: Hartley & Zisserman, Alg. 4.5); k from w stays the cap (False: always k, the paper).
+    #: docs/decisions/hypothesis-count.md.
+    adaptive_hypotheses: Annotated[bool, flag(), STATIC] = True
     #: Inlier threshold on |luminance residual|, 0-255 units (the paper's value).
     thresh_lum: Annotated[Any, real(0, lo_open=True)] = 30.0
     #: Inlier threshold on |depth residual|, metres (the paper's value).
@@ -149,10 +154,10 @@ class Config:
         """The seed paper's algorithm as published: hypotheses fitted on the photometric
         residual only, ranked by inlier count, scored on every pixel of every level, and
         every pixel used in the refinement, plain least squares on the consensus set.
-        RANSAC runs on every level, and luminance is compared as it is. The defaults differ from it
-        in these nine places, each measured to be more accurate or faster (docs/decisions/)."""
-        return cls(method=method, hypothesis_terms="photometric", scoring="count", score_depth_power=0.0,
-                   brightness="none",
+        RANSAC draws all k hypotheses on every level, and luminance is compared as it is. The defaults differ from it
+        in these ten places, each measured to be more accurate or faster (docs/decisions/)."""
+        return cls(method=method, adaptive_hypotheses=False, hypothesis_terms="photometric", scoring="count",
+                   score_depth_power=0.0, brightness="none",
                    consensus_weights="binary", prior_candidate="raw", ransac_finest=0,
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 

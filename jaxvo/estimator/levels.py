@@ -189,7 +189,7 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
                               scoring=config.scoring, depth_power=config.score_depth_power, offset=offset,
-                              table=table, T_other=T_carried)
+                              table=table, T_other=T_carried, adaptive=config.adaptive_hypotheses)
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)

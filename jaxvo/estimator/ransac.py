@@ -175,7 +175,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
                  max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
                  depth_weight=None, scoring: str = "count", depth_power=0.0, table=None, offset=0.0,
-                 T_other=None) -> RansacResult:
+                 T_other=None, adaptive: bool = False) -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
@@ -196,6 +196,8 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     the luminance of the sampled reference pixels (see :func:`fit_hypothesis`). T_other: an
     optional further (4, 4) candidate, scored beside T_init before any hypothesis (the pose a
     plain fit started from, which a moving object may have dragged T_init away from).
+    adaptive: also stop once the batches drawn reach p for w = 1 - the best inlier ratio so far
+    (``Config.adaptive_hypotheses``).
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
@@ -217,7 +219,14 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         # done once the best hypothesis explains the share of the pixels or of their surface
         # (with depth_power 0 the two are the same)
         done = jnp.maximum(best_count / n_ref, best_surface / s_ref) > early_exit_ratio
-        return (b * batch_size < k) & ~done
+        if not adaptive:
+            return (b * batch_size < k) & ~done
+        # adaptive RANSAC: the best inlier ratio so far bounds the outlier fraction, so fewer
+        # draws reach the same success probability p (evaluated >= 1 batch: the prior is no draw)
+        # (in floats: a ratio near 0 gives k = inf, which no int32 holds)
+        good = jnp.clip(best_count / n_ref, 0.0, 1.0) ** n
+        k_seen = jnp.maximum(jnp.log(1.0 - p) / jnp.log1p(-good), 1.0)
+        return (b * batch_size < jnp.minimum(k, k_seen)) & ~done
 
     def body(state):
         # named scopes: the stages in the compiled program's metadata (experiments/kernel_profile.py)

@@ -231,6 +231,34 @@ def test_ransac_level(level_pair):
     assert d_id < np.linalg.norm(G.log(G.inverse(T_TRUE)))
 
 
+def test_adaptive_count_stops_once_the_best_ratio_makes_p(level_pair):
+    """Adaptive RANSAC: with the best inlier ratio r so far, k(r) = log(1 - p) / log(1 - r^n) draws
+    reach the success probability p; the level stops at the first batch boundary past it (and
+    never past k from w). Without the early exit, a start at the truth (r near 1) needs one batch
+    where the fixed count draws all 37; a start that explains nothing draws all 37 either way."""
+    ref, cur, pts = level_pair
+    key = jax.random.key(3)
+
+    @functools.partial(jax.jit, static_argnames=("adaptive",))
+    def run(T_init, thresh_lum, adaptive):
+        return ransac_level(T_init, ref, cur, CAM, pts, key, p=0.99, w=0.3, thresh_lum=thresh_lum,
+                            thresh_depth=0.05, early_exit_ratio=1.0, n=6, radius=1, max_hypotheses=64,
+                            batch_size=4, hypothesis_iterations=8, adaptive=adaptive)
+
+    truth = jnp.asarray(T_TRUE, jnp.float32)
+    fixed, adaptive = run(truth, 30.0, False), run(truth, 30.0, True)
+    assert int(fixed.hypotheses) == 37
+    r = float(adaptive.inlier_ratio)
+    k_r = np.log(0.01) / np.log(1.0 - r ** 6)  # independent of the code's float32 form
+    assert r > 0.95 and k_r <= 4 and int(adaptive.hypotheses) == 4
+    # a start far off with a strict threshold: no hypothesis explains much, so the cap is k
+    far = jnp.asarray(G.exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])), jnp.float32)
+    lost_fixed, lost_adaptive = run(far, 1.0, False), run(far, 1.0, True)
+    k_lost = np.log(0.01) / np.log(1.0 - float(lost_adaptive.inlier_ratio) ** 6)
+    assert k_lost > 37 and int(lost_adaptive.hypotheses) == 37
+    np.testing.assert_array_equal(np.asarray(lost_adaptive.T), np.asarray(lost_fixed.T))
+
+
 def test_second_candidate_is_kept_when_it_scores_better(level_pair):
     """T_other (the pose carried up from the coarser level, which a mover may have dragged the
     plain fit away from) is scored beside T_init: with no hypotheses drawn, the better of the
