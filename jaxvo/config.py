@@ -58,9 +58,9 @@ class Config:
     w: Annotated[Any, real(0, 1, hi_open=True)] = 0.3
     #: True: each level also stops once its draws would have found an all-inlier sample with
     #: probability p had w been 1 - the best hypothesis's inlier ratio so far (adaptive RANSAC,
-    #: Hartley & Zisserman, Alg. 4.5); k from w stays the cap (False: always k, the paper).
-    #: docs/decisions/hypothesis-count.md.
-    adaptive_hypotheses: Annotated[bool, flag(), STATIC] = True
+    #: Hartley & Zisserman, Alg. 4.5); k from w stays the cap. False: always k (the paper). The
+    #: default tracking turns it on (``TrackConfig.adaptive``). docs/decisions/hypothesis-count.md.
+    adaptive_hypotheses: Annotated[bool, flag(), STATIC] = False
     #: Inlier threshold on |luminance residual|, 0-255 units (the paper's value).
     thresh_lum: Annotated[Any, real(0, lo_open=True)] = 30.0
     #: Inlier threshold on |depth residual|, metres (the paper's value).
@@ -154,10 +154,10 @@ class Config:
         """The seed paper's algorithm as published: hypotheses fitted on the photometric
         residual only, ranked by inlier count, scored on every pixel of every level, and
         every pixel used in the refinement, plain least squares on the consensus set.
-        RANSAC draws all k hypotheses on every level, and luminance is compared as it is. The defaults differ from it
-        in these ten places, each measured to be more accurate or faster (docs/decisions/)."""
-        return cls(method=method, adaptive_hypotheses=False, hypothesis_terms="photometric", scoring="count",
-                   score_depth_power=0.0, brightness="none",
+        RANSAC runs on every level, and luminance is compared as it is. The defaults differ from it
+        in these nine places, each measured to be more accurate or faster (docs/decisions/)."""
+        return cls(method=method, hypothesis_terms="photometric", scoring="count", score_depth_power=0.0,
+                   brightness="none",
                    consensus_weights="binary", prior_candidate="raw", ransac_finest=0,
                    max_score_pixels=1 << 30, blocks=(1, 1, 1, 1)).replace(**changes)
 
@@ -289,6 +289,10 @@ class TrackConfig(NamedTuple):
     #: ``Config.w``. A smaller value is faster where people move and less robust on unlucky
     #: draws. docs/decisions/hypothesis-count.md.
     outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
+    #: With the segmentation (``segment``) and RANSAC: every estimate of the tracking stops drawing
+    #: hypotheses once its best one's inlier ratio over the trusted pixels makes p reachable
+    #: (``Config.adaptive_hypotheses``); False: as the Config says. docs/decisions/hypothesis-count.md.
+    adaptive: Annotated[bool, flag()] = True
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

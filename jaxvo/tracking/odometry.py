@@ -76,6 +76,19 @@ def _within(T: np.ndarray, metres: float, degrees: float) -> bool:
     return bool(np.linalg.norm(T[:3, 3]) <= metres and geometry.rotation_angle(T[:3, :3]) <= np.radians(degrees))
 
 
+def _tracking_config(config: Config, policy: TrackConfig) -> Config:
+    """The Config of the tracking's estimates: with the segmentation, ``Config.w`` =
+    ``TrackConfig.outliers`` (where not None) and ``Config.adaptive_hypotheses`` on where
+    ``TrackConfig.adaptive`` is; without it ``config`` as given. The map's static weights keep what
+    it saw move out of the samples and out of the inlier ratio, so the ratio measures the static
+    scene's share and the adaptive stop is safe; in a pair alone a hypothesis that fits a mover
+    and part of the room can reach it (docs/decisions/hypothesis-count.md)."""
+    if not policy.segment:
+        return config
+    config = _with_outliers(config, policy.outliers)
+    return config.replace(adaptive_hypotheses=True) if policy.adaptive and not config.adaptive_hypotheses else config
+
+
 def _with_outliers(config: Config, outliers: Optional[float]) -> Config:
     """``config`` with ``Config.w`` = ``outliers`` (None: unchanged). The same compiled program:
     w is a traced leaf, and an array keeps the config's dtype, so the program's signature stays."""
@@ -161,8 +174,9 @@ class Odometry:
             raise ValueError(f"policy must be a jaxvo.TrackConfig, got {type(self.policy).__name__}")
         self.policy.validate()
         #: The Config of the tracking's estimates: ``config`` with ``Config.w`` set to
-        #: ``TrackConfig.outliers`` where the segmentation is on (and that is not None).
-        self.estimate_config = _with_outliers(self.config, self.policy.outliers if self.policy.segment else None)
+        #: ``TrackConfig.outliers`` (where not None) and the adaptive hypothesis count
+        #: (``TrackConfig.adaptive``) where the segmentation is on.
+        self.estimate_config = _tracking_config(self.config, self.policy)
         # the estimates against the window's older keyframes (TrackConfig.window_outliers)
         self._window_config = _with_outliers(self.estimate_config, self.policy.window_outliers)
         self.key = checked_key(key)
