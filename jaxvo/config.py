@@ -59,7 +59,7 @@ class Config:
     #: True: each level also stops once its draws would have found an all-inlier sample with
     #: probability p had w been 1 - the best hypothesis's inlier ratio so far (adaptive RANSAC,
     #: Hartley & Zisserman, Alg. 4.5); k from w stays the cap. False: always k (the paper). The
-    #: default tracking turns it on (``TrackConfig.adaptive``). docs/decisions/hypothesis-count.md.
+    #: tracking can turn it on for its estimates (``TrackConfig.adaptive``). docs/decisions/hypothesis-count.md.
     adaptive_hypotheses: Annotated[bool, flag(), STATIC] = False
     #: Inlier threshold on |luminance residual|, 0-255 units (the paper's value).
     thresh_lum: Annotated[Any, real(0, lo_open=True)] = 30.0
@@ -289,10 +289,12 @@ class TrackConfig(NamedTuple):
     #: ``Config.w``. A smaller value is faster where people move and less robust on unlucky
     #: draws. docs/decisions/hypothesis-count.md.
     outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
-    #: With the segmentation (``segment``) and RANSAC: every estimate of the tracking stops drawing
-    #: hypotheses once its best one's inlier ratio over the trusted pixels makes p reachable
-    #: (``Config.adaptive_hypotheses``); False: as the Config says. docs/decisions/hypothesis-count.md.
-    adaptive: Annotated[bool, flag()] = True
+    #: With the segmentation (``segment``) and RANSAC, True: every estimate of the tracking stops
+    #: drawing hypotheses once its best one's inlier ratio over the trusted pixels makes p
+    #: reachable (``Config.adaptive_hypotheses``); False: as the Config says. Faster where people
+    #: move, and lost on some sequences that start with people in view.
+    #: docs/decisions/hypothesis-count.md.
+    adaptive: Annotated[bool, flag()] = False
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

@@ -79,10 +79,7 @@ def _within(T: np.ndarray, metres: float, degrees: float) -> bool:
 def _tracking_config(config: Config, policy: TrackConfig) -> Config:
     """The Config of the tracking's estimates: with the segmentation, ``Config.w`` =
     ``TrackConfig.outliers`` (where not None) and ``Config.adaptive_hypotheses`` on where
-    ``TrackConfig.adaptive`` is; without it ``config`` as given. The map's static weights keep what
-    it saw move out of the samples and out of the inlier ratio, so the ratio measures the static
-    scene's share and the adaptive stop is safe; in a pair alone a hypothesis that fits a mover
-    and part of the room can reach it (docs/decisions/hypothesis-count.md)."""
+    ``TrackConfig.adaptive`` is; without it ``config`` as given (docs/decisions/hypothesis-count.md)."""
     if not policy.segment:
         return config
     config = _with_outliers(config, policy.outliers)

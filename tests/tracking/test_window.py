@@ -173,17 +173,16 @@ def test_window_is_deterministic_and_compiles_once(crowd):
     assert window._refine.traces == traces                  # no retrace per window update
 
 
-def test_the_tracking_counts_hypotheses_adaptively_where_it_segments():
-    """TrackConfig.adaptive (on by default) turns on Config.adaptive_hypotheses for every estimate
-    of the tracking with the segmentation, whose static weights keep movers out of the inlier
-    ratio; without the segmentation, or with it off, the Config is used as given."""
+def test_adaptive_sets_the_tracking_estimates_count_where_it_segments():
+    """TrackConfig.adaptive (off by default) turns on Config.adaptive_hypotheses for every estimate
+    of the tracking with the segmentation; without the segmentation the Config is used as given."""
     assert Config().adaptive_hypotheses is False and Config.paper().adaptive_hypotheses is False
-    default = Odometry(CAM)
-    assert default.estimate_config == default.config.replace(adaptive_hypotheses=True)
-    for policy in (TrackConfig.keyframes(), TrackConfig.frame_to_frame(), TrackConfig(adaptive=False)):
+    for policy in (TrackConfig(), TrackConfig.keyframes(adaptive=True), TrackConfig.frame_to_frame(adaptive=True)):
         odo = Odometry(CAM, policy=policy)
         assert odo.estimate_config is odo.config and not odo.estimate_config.adaptive_hypotheses
-    both = Odometry(CAM, policy=TrackConfig(outliers=0.2))
+    on = Odometry(CAM, policy=TrackConfig(adaptive=True))
+    assert on.estimate_config == on.config.replace(adaptive_hypotheses=True)
+    both = Odometry(CAM, policy=TrackConfig(outliers=0.2, adaptive=True))
     assert both.estimate_config.w == 0.2 and both.estimate_config.adaptive_hypotheses
 
 
@@ -203,8 +202,7 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
             return est
 
     def run(policy):
-        # the fixed count k (the adaptive stop would end most levels after one batch here)
-        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy._replace(adaptive=False))
+        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
         for f in frames[:40]:
             odo.add(f)
         return odo
@@ -212,7 +210,7 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
     plain = run(TrackConfig(outliers=0.2))
     assert plain.config.w == Config().w == 0.3 and plain.estimate_config.w == 0.2
     default = Odometry(CAM)                                       # outliers None: Config.w as given
-    assert TrackConfig().outliers is None and default.estimate_config.w == default.config.w
+    assert TrackConfig().outliers is None and default.estimate_config is default.config
     without = Odometry(CAM, policy=TrackConfig.keyframes())      # no segmentation: Config.w as given
     assert without.estimate_config is without.config
     traces = trace_count()
