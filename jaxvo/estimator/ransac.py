@@ -16,7 +16,8 @@ One call of :func:`ransac_level` runs, for one pyramid level:
    0: the paper's count);
 4. the best hypothesis so far is kept; the loop stops when a hypothesis's
    inlier ratio (or its share of the weighted total) exceeds ``early_exit_ratio``
-   or after k hypotheses.
+   or after k hypotheses; with ``adaptive`` also once the batches drawn reach p for
+   w = 1 - the best inlier ratio so far (adaptive RANSAC, Hartley & Zisserman Alg. 4.5).
 
 The initial pose itself (the previous level's result) is scored first as
 hypothesis zero: on a static scene it usually passes the early exit at once,
@@ -46,9 +47,14 @@ def num_hypotheses(p, w, n):
     p: success probability, w: outlier fraction, n: points per sample. Works on
     Python floats and on traced JAX values.
     """
-    good = (1.0 - w) ** n
     # at least one draw (w = 0 would give log(1-p) / -inf = 0)
-    return jnp.maximum(jnp.ceil(jnp.log(1.0 - p) / jnp.log1p(-good)), 1).astype(jnp.int32)
+    return jnp.maximum(jnp.ceil(_draws(p, (1.0 - w) ** n)), 1).astype(jnp.int32)
+
+
+def _draws(p, good):
+    """log(1 - p) / log(1 - good), in floats: the draws after which a sample that is all inliers
+    (each with probability ``good``) has come with probability p (inf for good = 0)."""
+    return jnp.log(1.0 - p) / jnp.log1p(-good)
 
 
 def inliers(res: Residuals, thresh_lum, thresh_depth):
@@ -222,10 +228,9 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         if not adaptive:
             return (b * batch_size < k) & ~done
         # adaptive RANSAC: the best inlier ratio so far bounds the outlier fraction, so fewer
-        # draws reach the same success probability p (evaluated >= 1 batch: the prior is no draw)
-        # (in floats: a ratio near 0 gives k = inf, which no int32 holds)
-        good = jnp.clip(best_count / n_ref, 0.0, 1.0) ** n
-        k_seen = jnp.maximum(jnp.log(1.0 - p) / jnp.log1p(-good), 1.0)
+        # draws reach the same success probability p (at least one batch: the prior is no draw;
+        # in floats, as a ratio near 0 gives inf draws, which no int32 holds)
+        k_seen = jnp.maximum(_draws(p, jnp.clip(best_count / n_ref, 0.0, 1.0) ** n), 1.0)
         return (b * batch_size < jnp.minimum(k, k_seen)) & ~done
 
     def body(state):
