@@ -286,8 +286,8 @@ class TrackConfig(NamedTuple):
     #: With the segmentation (``segment``) and RANSAC: the outlier fraction (``Config.w``, in
     #: [0, 1)) that every estimate of the tracking assumes, which sets how many hypotheses it
     #: draws (the map's static weights leave out of the samples what it saw move); None:
-    #: ``Config.w``. A smaller value is faster where people move and less robust on unlucky
-    #: draws. docs/decisions/hypothesis-count.md.
+    #: ``Config.w``. A smaller value is faster where people move, less robust on unlucky draws
+    #: and lost on some sequences that start with people in view. docs/decisions/hypothesis-count.md.
     outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="Config.w")] = None
     #: With the segmentation (``segment``) and RANSAC, True: every estimate of the tracking stops
     #: drawing hypotheses once its best one's inlier ratio over the trusted pixels makes p
