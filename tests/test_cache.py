@@ -83,7 +83,10 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     entries = set(os.listdir(folder))
     exported = set(os.listdir(folder / "exported"))
     assert entries - {"exported"}, "the first runs wrote no compiled program into the cache folder"
-    assert sorted(e.split("-")[0] for e in exported) == sorted(["estimate"] + [p.name for p in TRACKING])
+    # each program's exported (traced) program and its compiled executable
+    names = sorted(["estimate"] + [p.name for p in TRACKING])
+    assert sorted(e.split("-")[0] for e in exported if e.endswith(".jaxexport")) == names
+    assert sorted(e.split("-")[0] for e in exported if e.endswith(".xla")) == names
 
     # JAX logs each function it traces; the third process must trace no estimator
     third = subprocess.run(_cmd(seq, tmp_path / "t3.txt"), capture_output=True, text=True,
@@ -91,9 +94,10 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     assert third.returncode == 0, third.stderr
     assert "Finished tracing" in third.stderr  # the log is on (the small helpers are traced)
     traced = set(re.findall(r"Finished tracing (\S+) for", third.stderr))
-    assert traced and not traced & {"estimate_exported", "_estimate", "_estimate_pyramids",
-                                    *(f"{p.name}_exported" for p in TRACKING), *(p.fn.__name__ for p in TRACKING)}
-    assert {f"call_{p.name}" for p in TRACKING} <= traced   # (the log names what was loaded)
+    # nor does it lower them: their executables are read as they are
+    assert traced and not traced & {"estimate_exported", "_estimate", "_estimate_pyramids", "call_estimate",
+                                    *(f"{p.name}_exported" for p in TRACKING), *(p.fn.__name__ for p in TRACKING),
+                                    *(f"call_{p.name}" for p in TRACKING)}
     assert set(os.listdir(folder)) == entries and set(os.listdir(folder / "exported")) == exported
     no_cache = subprocess.run(_cmd(seq, tmp_path / "t4.txt") + ["--no-cache"], capture_output=True, text=True,
                               env=env, cwd=REPO, timeout=600)
@@ -109,11 +113,28 @@ def _scaled(x, config):
 _scaled_jit = jax.jit(_scaled)
 
 
-def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatch, aot_restored):
-    """aot.call: the first call exports and writes the program, a fresh start (the in-process
-    memo cleared) loads it without tracing; a corrupt, truncated or foreign file is replaced by
-    a fresh export; an unwritable folder and traced arguments take the jit path; all give the
-    plain jit result."""
+@pytest.fixture
+def xla_compiles():
+    """JAX's persistent cache off for the test: every compilation is XLA's own (so aot writes
+    each program's executable whatever other tests of the worker compiled before)."""
+    before = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    yield
+    jax.config.update("jax_enable_compilation_cache", before)
+
+
+def _only(folder: Path, suffix: str) -> Path:
+    (path,) = [p for p in folder.iterdir() if p.name.startswith("scaled") and p.name.endswith(suffix)]
+    return path
+
+
+def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatch, aot_restored, xla_compiles):
+    """aot.call: the first call exports the program, compiles it and writes both; a fresh start
+    (the in-process memo cleared) loads the executable without tracing or compiling; a corrupt,
+    truncated or foreign executable falls back to the exported program (compiled, the
+    executable written again), and a bad exported program, without an executable, is replaced by a
+    fresh export; an unwritable folder and traced arguments take the jit path; all give the plain
+    jit result."""
     traces = []
     monkeypatch.setattr(aot, "_PROGRAMS", {})
     x = jnp.arange(6.0, dtype=jnp.float32).reshape(2, 3)
@@ -132,11 +153,15 @@ def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatc
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         return {k: aot.stats()[k] - before[k] for k in before}
 
+    def counts(executables=0, loaded=0, exported=0):
+        return {"executables": executables, "loaded": loaded, "exported": exported, "fallbacks": 0}
+
+    folder = tmp_path / "exported"
     try:
-        assert aot.enable(tmp_path / "exported") == tmp_path / "exported"
-        assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0} and len(traces) == 1
-        (path,) = (tmp_path / "exported").iterdir()
-        assert run() == {"loaded": 1, "exported": 0, "fallbacks": 0} and len(traces) == 1
+        assert aot.enable(folder) == folder
+        assert run() == counts(exported=1) and len(traces) == 1
+        path, xla = _only(folder, ".jaxexport"), _only(folder, ".xla")
+        assert run() == counts(executables=1) and len(traces) == 1
         # the same values as NumPy (estimate_motion passes NumPy frames as they are): the same
         # program, neither a second export nor a second entry
         before = aot.stats()
@@ -144,23 +169,30 @@ def test_exported_program_is_reused_and_bad_files_fall_back(tmp_path, monkeypatc
         for a, b in zip(out, want):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert aot.stats() == before and len(aot._PROGRAMS) == 1 and len(traces) == 1
-        blob = path.read_bytes()
+        blob, xla_blob = path.read_bytes(), xla.read_bytes()
+        for bad in (xla_blob[: len(xla_blob) // 2], xla_blob[:-1] + bytes([xla_blob[-1] ^ 1]), b"",
+                    b"not an executable", blob):
+            xla.write_bytes(bad)
+            assert run() == counts(loaded=1)       # the exported program, compiled
+            assert run() == counts(executables=1)  # its executable written again, whole
         for bad in (blob[: len(blob) // 2], blob[:-1] + bytes([blob[-1] ^ 1]), b"", b"not an exported program"):
             path.write_bytes(bad)
-            assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0}
-            assert run() == {"loaded": 1, "exported": 0, "fallbacks": 0}  # rewritten whole
-        # a file of another signature under this name (e.g. copied by hand) is stale, not used
+            xla.unlink()
+            assert run() == counts(exported=1) and xla.exists()
+            assert run() == counts(executables=1)  # rewritten whole
+        # files of another signature under these names (e.g. copied by hand) are stale, not used
         other = aot.call("other", lambda v, c: _scaled(v, c), _scaled_jit, (x[:1], cfg))
         assert len(other) == 2
-        (other_path,) = [p for p in (tmp_path / "exported").iterdir() if p.name.startswith("other")]
-        path.write_bytes(other_path.read_bytes())
-        assert run() == {"loaded": 0, "exported": 1, "fallbacks": 0}
+        for mine in (xla, path):
+            theirs = [p for p in folder.iterdir() if p.name.startswith("other") and p.suffix == mine.suffix]
+            mine.write_bytes(theirs[0].read_bytes())
+        assert run() == counts(exported=1)
         # traced arguments (vmap) never use the folder
         n = len(traces)
         ys = jax.vmap(lambda t: aot.call("scaled", fn, _scaled_jit, (x, cfg.replace(thresh_lum=t)))[1])(
             jnp.array([1.0, 2.0]))  # leaves in key order: n, y
         np.testing.assert_array_equal(np.asarray(ys[1]), np.asarray(x) * 2.0 + 6)
-        assert len(list((tmp_path / "exported").iterdir())) == 2 and len(traces) == n  # the jit path
+        assert len(list(folder.iterdir())) == 4 and len(traces) == n  # the jit path
     finally:
         aot.enable(None)
     aot._PROGRAMS.clear()
@@ -182,9 +214,37 @@ def test_enabling_the_folder_in_use_keeps_the_programs_ready(tmp_path, monkeypat
     aot.enable(tmp_path / "b")
     assert not aot._PROGRAMS
     aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
-    assert aot.stats()["exported"] == before["exported"] + 1 and len(list((tmp_path / "b").iterdir())) == 1
+    assert aot.stats()["exported"] == before["exported"] + 1 and len(list((tmp_path / "b").glob("*.jaxexport"))) == 1
     aot.enable(None)
     assert not aot._PROGRAMS and aot.folder() is None
+
+
+def test_an_executable_read_from_jaxs_cache_is_not_written_again(own_cache, monkeypatch):
+    """Only an executable that XLA compiled in this process is written: one that JAX's cache gave
+    back names kernels that its serialization then lacks on the CPU, and a process that loaded
+    it would fail. Such a program is kept as its exported program (a hit in JAX's cache) until a
+    process compiles it."""
+    monkeypatch.setattr(aot, "_PROGRAMS", {})
+    x = jnp.arange(15.0, dtype=jnp.float32).reshape(3, 5)
+    want = jax.tree.leaves(_scaled_jit(x, Config()))
+    folder = own_cache / "exported"
+
+    def run():
+        aot._PROGRAMS.clear()  # as a new process
+        before = aot.stats()
+        out = aot.call("scaled", _scaled, _scaled_jit, (x, Config()))
+        for a, b in zip(out, want):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        return {k: aot.stats()[k] - before[k] for k in before}
+
+    assert run()["exported"] == 1
+    xla = _only(folder, ".xla")
+    assert run()["executables"] == 1
+    xla.unlink()
+    jax_entries = set(own_cache.glob("*-cache"))
+    assert jax_entries                               # JAX's cache holds the compiled program
+    assert run() == {"executables": 0, "loaded": 1, "exported": 0, "fallbacks": 0}
+    assert not xla.exists() and set(own_cache.glob("*-cache")) == jax_entries
 
 
 def test_unwritable_folder_still_runs_the_program(tmp_path, monkeypatch, aot_restored):
@@ -245,8 +305,9 @@ def _first_estimate(folder: Path) -> tuple:
 def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_path):
     """A program that only imports jaxvo: the first process on an empty folder compiles (and says
     so in one note line), a second one, after the folder was moved, compiles nothing: every
-    program it needs is a hit, the estimator is not traced (so jaxopt, and the scipy it imports, are
-    never imported), and the estimate is bitwise the same."""
+    program it needs is a hit, the estimator's executable is read as it is (neither traced, so
+    jaxopt and the scipy it imports are never imported, nor lowered), and the estimate is bitwise
+    the same."""
     first, err = _first_estimate(tmp_path / "cache")
     assert first["folder"] == str(tmp_path / "cache") and first["cold"] is True
     assert first["aot"]["exported"] == 1 and first["jax"]["requests"] > first["jax"]["hits"]
@@ -259,7 +320,7 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     shutil.move(tmp_path / "cache", tmp_path / "moved")   # a moved (or copied) folder still hits
     second, err = _first_estimate(tmp_path / "moved")
     assert second["cold"] is False and not err.strip()
-    assert second["aot"] == {"loaded": 1, "exported": 0, "fallbacks": 0}
+    assert second["aot"] == {"executables": 1, "loaded": 0, "exported": 0, "fallbacks": 0}
     assert second["jaxopt"] is False
     assert second["jax"]["requests"] == second["jax"]["hits"] > 0 and second["jax"]["repaired"] == 0
     assert sorted(p.name for p in (tmp_path / "moved").rglob("*") if p.is_file()) == entries

@@ -1,14 +1,21 @@
-"""jaxvo's traced programs (the estimator's, the tracking's) kept on disk, so that a later
-process skips tracing them.
+"""jaxvo's programs (the estimator's, the tracking's) kept on disk, traced and compiled, so that a
+later process neither traces nor lowers them.
 
 JAX's persistent compilation cache (:mod:`jaxvo.runtime.cache`) is keyed by the *lowered* program:
 a process that finds its compiled estimator there must still trace and lower it first
 (about 3 s at 640x480 on a small CPU, most of a second process's start-up; the tracking's
-programs about as much again). This module keeps that lowered program too, as a
-``jax.export`` serialization, in the folder given to :func:`enable`
-(``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``). A later process
-deserializes it and calls it without tracing; its XLA compilation is then a hit in JAX's
-cache. The first process traces once, exports, writes the file and runs the exported
+programs about as much again). This module keeps, in the folder given to :func:`enable`
+(``jaxvo.runtime.cache.enable`` uses ``<cache folder>/exported``), each program twice:
+
+* its traced program, a ``jax.export`` serialization (``.jaxexport``): a later process
+  deserializes it and compiles its call without tracing (a hit in JAX's cache);
+* the executable XLA compiled from it (``.xla``, ``jax.experimental.serialize_executable``),
+  named also by the processor it was compiled for (:func:`jaxvo.runtime.machine.instruction_set`):
+  a later process on such a processor loads it and calls it as it is, without lowering it or
+  asking JAX's cache (at 640x480 about a fifth of a second less before the first pose). Only an
+  executable XLA compiled in this process is written (:func:`_compile`).
+
+The first process traces once, exports, compiles, writes both files and runs the compiled
 program (one trace, one XLA compilation, as without this module).
 
 A file is named ``<function>-<environment>-<program>.jaxexport``: a hash of the environment
@@ -17,10 +24,11 @@ for this jaxvo, jax and device) and a hash of everything that determines the pro
 the jax and jaxlib versions, the backend (platform, its version, device kind), JAX's
 configuration values (but those of logging, caches and dumps) and ``XLA_FLAGS``, the source of every module of the jaxvo package,
 and the arguments' pytree structure (which holds the static fields of ``Config`` and the
-image size of ``Camera``) and abstract values (shape, dtype, weak type). A file whose
-checksum, format or abstract signature does not match is ignored and rewritten; any error
-while exporting, reading or running an exported program falls back to the ordinary jit
-path, so the worst a bad file costs is the time of tracing. Files are written under a
+image size of ``Camera``) and abstract values (shape, dtype, weak type); its executable
+``<function>-<environment>-<program>-<processor>.xla``. A file whose checksum, format or
+abstract signature does not match is ignored and rewritten (a bad executable: the exported
+program is compiled instead); any error while exporting, reading or running a program falls
+back to the ordinary jit path, so the worst a bad file costs is the time of tracing. Files are written under a
 temporary name and renamed (``os.replace``), so processes sharing the folder read either
 no file or a complete one; two processes that export the same program write equivalent
 files (they differ only in the source locations kept for error messages). Deleting the folder is always safe. Loading a file runs its program, so the folder
@@ -35,8 +43,8 @@ estimator) always take the jit path.
 
 :class:`Program` bundles a function with its name, jit and compiler options for :func:`call`,
 and makes it ready ahead of its first call (:meth:`Program.compile_ahead`, e.g. in a thread
-while the estimator is traced): read and compiled (a hit in JAX's cache) in a process that
-finds its file, traced, written and compiled in one that does not. An exported program's
+while the estimator is traced): its executable read in a process that finds it, traced,
+written and compiled in one that does not. An exported program's
 outputs are committed to the device (:func:`sharding`); :func:`placed` puts the state that such
 outputs replace there from the start, so that the plain jits that read it compile once.
 """
@@ -59,6 +67,7 @@ __all__ = ["Program", "call", "compile_ahead", "enable", "environment_tag", "fol
            "program_key", "sharding", "stats"]
 
 _MAGIC = b"jaxvo-exported-1\n"
+_EXECUTABLE_MAGIC = b"jaxvo-executable-1\n"
 _FOLDER: Dict[str, Optional[Path]] = {"path": None}
 # per (name, tree, argument signature) in this process: the jitted exported program, or None = use jit
 _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
@@ -66,8 +75,12 @@ _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
 # and a call that needs it meanwhile waits for it
 _LOCKS: Dict[tuple, threading.Lock] = {}
 _LOCKS_LOCK = threading.Lock()
-_STATS = {"loaded": 0, "exported": 0, "fallbacks": 0}
+_STATS = {"executables": 0, "loaded": 0, "exported": 0, "fallbacks": 0}
 _SOURCE: Dict[str, str] = {}
+_LAPACK = {"ready": False}
+# per thread: whether its latest compilation read JAX's cache (set by :func:`_on_event`)
+_COMPILED = threading.local()
+_LISTENING = {"on": False}
 # JAX settings that never change a traced program (logging, caches, dumps), left out of the
 # file name so that e.g. JAX_LOG_COMPILES=1 still finds the program
 _UNRELATED = re.compile(r"log|cache|explain|dump|traceback|pprint|transfer_guard|profil|timeout|verbose|report")
@@ -96,7 +109,8 @@ def folder() -> Optional[Path]:
 
 
 def stats() -> dict:
-    """Counts in this process: programs ``loaded`` from files, ``exported`` (traced and written),
+    """Counts in this process: compiled ``executables`` read from files, exported programs
+    ``loaded`` from files (then compiled: a hit in JAX's cache), ``exported`` (traced and written),
     and ``fallbacks`` to the jit path; for tests and benchmarks."""
     return dict(_STATS)
 
@@ -173,13 +187,13 @@ def _read(path: Path, leaves):
     return exp
 
 
-def _write(path: Path, payload: bytes) -> None:
+def _write(path: Path, payload: bytes, magic: bytes = _MAGIC) -> None:
     """Write atomically: a temporary file in the same folder, then ``os.replace``."""
     tmp = path.parent / f"{path.name}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)  # the umask applies, as for JAX's files
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(_MAGIC + hashlib.sha256(payload).digest() + payload)
+            f.write(magic + hashlib.sha256(payload).digest() + payload)
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -189,12 +203,101 @@ def _write(path: Path, payload: bytes) -> None:
         raise
 
 
+def _executable_path(path: Path) -> Path:
+    """Where the compiled executable of the exported program ``path`` is kept: beside it, named
+    also by this machine's processor (:func:`jaxvo.runtime.machine.instruction_set`), for which
+    XLA generated its code."""
+    from jaxvo.runtime.machine import instruction_set
+
+    isa = hashlib.sha256(instruction_set().encode()).hexdigest()[:8]
+    return path.with_name(f"{path.name[:-len('.jaxexport')]}-{isa}.xla")
+
+
+def _trees(n_in: int, n_out: int):
+    """The argument and result trees of an exported program's call: ``run(*leaves)`` -> a tuple."""
+    return jax.tree.structure((tuple(range(n_in)), {})), jax.tree.structure(tuple(range(n_out)))
+
+
+def _lapack_ready() -> None:
+    """Point XLA's CPU LAPACK kernels (Cholesky and triangular solves of the solvers) at their
+    implementations. JAX does so while it lowers a program that calls them; an executable read
+    from a file is never lowered, and running it before would call a null kernel."""
+    if _LAPACK["ready"] or jax.devices()[0].platform != "cpu":
+        return
+    try:
+        from jax._src.lib import lapack
+
+        lapack._lapack.initialize()
+    except Exception:  # noqa: BLE001 - another jaxlib: lowering any LAPACK call does it
+        jax.jit(jax.numpy.linalg.cholesky).lower(np.eye(2, dtype=np.float32))
+    _LAPACK["ready"] = True
+
+
+def _read_executable(path: Path, leaves):
+    """The compiled program stored at ``path``, loaded onto the device, if the file is complete
+    and its arguments are ``leaves``' shapes and dtypes; else None."""
+    from jax.experimental import serialize_executable
+
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    head = len(_EXECUTABLE_MAGIC) + 32
+    if len(blob) < head + 4 or not blob.startswith(_EXECUTABLE_MAGIC) \
+            or hashlib.sha256(blob[head:]).digest() != blob[len(_EXECUTABLE_MAGIC):head]:
+        return None
+    n_out = int.from_bytes(blob[head:head + 4], "little")
+    _lapack_ready()
+    compiled = serialize_executable.deserialize_and_load(blob[head + 4:], *_trees(len(leaves), n_out))
+    args = jax.tree.leaves(compiled.args_info, is_leaf=lambda a: hasattr(a, "_aval"))
+    if [(a._aval.shape, a._aval.dtype) for a in args] != [(t.shape, t.dtype) for t in map(jax.typeof, leaves)]:
+        return None
+    return compiled
+
+
+def _on_event(event: str, **kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":   # recorded in the thread that compiles
+        _COMPILED.from_cache = True
+
+
+def _compile(jitted, leaves):
+    """``jitted.lower(*leaves).compile()`` and whether XLA compiled it here (not read from JAX's cache)."""
+    if not _LISTENING["on"]:
+        from jax import monitoring
+
+        monitoring.register_event_listener(_on_event)
+        _LISTENING["on"] = True
+    _COMPILED.from_cache = False
+    compiled = jitted.lower(*leaves).compile()
+    return compiled, not _COMPILED.from_cache
+
+
+def _write_executable(path: Path, compiled, n_in: int) -> None:
+    """Keep ``compiled`` (a ``jax.stages.Compiled`` of an exported program's call, compiled by XLA
+    in this process) at ``path``."""
+    from jax.experimental import serialize_executable
+
+    payload, in_tree, out_tree = serialize_executable.serialize(compiled)
+    if (in_tree, out_tree) != _trees(n_in, out_tree.num_leaves):
+        return   # not the call this module reads back
+    _write(path, out_tree.num_leaves.to_bytes(4, "little") + payload, _EXECUTABLE_MAGIC)
+
+
 def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callable:
-    """The exported program of ``fn`` for these arguments (read, or traced and written), jitted."""
+    """The compiled program of ``fn`` for these arguments: its executable read from the folder,
+    or its exported program (read, or traced and written) compiled and its executable written."""
     from jax import export
 
     path = _FOLDER["path"] / (f"{name}-{environment_tag()}-"
                               f"{program_key(name, jax.tree.unflatten(tree, leaves))}.jaxexport")
+    executable = _executable_path(path)
+    try:
+        compiled = _read_executable(executable, leaves)
+    except Exception:  # a corrupt or foreign file: compile afresh below
+        compiled = None
+    if compiled is not None:
+        _STATS["executables"] += 1
+        return compiled
     exp = None
     try:
         exp = _read(path, leaves)
@@ -225,7 +328,15 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
     # is committed to the device in one call (e.g. a weight map computed from an earlier
     # estimate's outputs, which this program commits) and a host array in another compile the
     # whole program twice
-    return jax.jit(run, in_shardings=sharding(), compiler_options=compiler_options)
+    compiled, fresh = _compile(jax.jit(run, in_shardings=sharding(), compiler_options=compiler_options), leaves)
+    # only an executable XLA compiled here: on the CPU, one that JAX read from its cache and that
+    # is serialized again names kernels its file then lacks (jax 0.10: "Function ... not found")
+    if fresh:
+        try:
+            _write_executable(executable, compiled, len(leaves))
+        except Exception:  # noqa: BLE001 - a read-only or full folder, or a backend that cannot serialize
+            pass
+    return compiled
 
 
 def sharding() -> jax.sharding.Sharding:
@@ -235,8 +346,8 @@ def sharding() -> jax.sharding.Sharding:
 
 
 def _memo_program(name: str, fn: Callable, leaves, tree, compiler_options) -> Optional[Callable]:
-    """The jitted exported program for these arguments in this process (read or exported at its
-    first use), or None: the jit path."""
+    """The compiled program for these arguments in this process (:func:`_program`, at its first
+    use), or None: the jit path."""
     memo = (name, tree, _signature(leaves))
     with _LOCKS_LOCK:
         lock = _LOCKS.setdefault(memo, threading.Lock())
@@ -279,9 +390,7 @@ def compile_ahead(name: str, fn: Callable, fn_jit: Callable, args: Tuple,
     compiles nothing. Raises what lowering or compiling raises."""
     leaves, tree = jax.tree.flatten(args)
     prog = None if _FOLDER["path"] is None else _memo_program(name, fn, leaves, tree, compiler_options)
-    if prog is not None:
-        prog.lower(*leaves).compile()
-    else:
+    if prog is None:   # (an exported program is compiled when it is made ready)
         fn_jit.lower(*args).compile()
 
 

@@ -483,7 +483,7 @@ def test_map_programs_compiled_ahead_are_the_ones_called(caplog, tmp_path, expor
     # the thread traced each once (jit, or export into the fresh folder); the calls none again
     assert [a - b for a, b in zip(traces, before)] == [1, 1, 1] and [p.traces for p in programs] == traces
     if exported:
-        files = [f.name.split("-")[0] for f in (tmp_path / "exported").iterdir()]
+        files = [f.name.split("-")[0] for f in (tmp_path / "exported").glob("*.jaxexport")]
         assert [files.count(p.name) for p in programs] == [1, 1, 1], files
     compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
     estimator = [m for m in compiled if "_estimate" in m]   # jit(_estimate_pyramids) or jit(call_estimate)
