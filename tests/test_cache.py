@@ -83,8 +83,9 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     entries = set(os.listdir(folder))
     exported = set(os.listdir(folder / "exported"))
     assert entries - {"exported"}, "the first runs wrote no compiled program into the cache folder"
-    # each program's exported (traced) program and its compiled executable
-    names = sorted(["estimate"] + [p.name for p in TRACKING])
+    # each program's exported (traced) program and its compiled executable: the frames' pyramid
+    # (160x120 halves to 80x60: 2 levels), the estimator and the tracking's
+    names = sorted(["frame_pyramid_2", "estimate"] + [p.name for p in TRACKING])
     assert sorted(e.split("-")[0] for e in exported if e.endswith(".jaxexport")) == names
     assert sorted(e.split("-")[0] for e in exported if e.endswith(".xla")) == names
 
@@ -96,6 +97,7 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     traced = set(re.findall(r"Finished tracing (\S+) for", third.stderr))
     # nor does it lower them: their executables are read as they are
     assert traced and not traced & {"estimate_exported", "_estimate", "_estimate_pyramids", "call_estimate",
+                                    "_frame_pyramid", "frame_pyramid", "call_frame_pyramid_2",
                                     *(f"{p.name}_exported" for p in TRACKING), *(p.fn.__name__ for p in TRACKING),
                                     *(f"call_{p.name}" for p in TRACKING)}
     assert set(os.listdir(folder)) == entries and set(os.listdir(folder / "exported")) == exported
@@ -310,7 +312,7 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     the same."""
     first, err = _first_estimate(tmp_path / "cache")
     assert first["folder"] == str(tmp_path / "cache") and first["cold"] is True
-    assert first["aot"]["exported"] == 1 and first["jax"]["requests"] > first["jax"]["hits"]
+    assert first["aot"]["exported"] == 2 and first["jax"]["requests"] > first["jax"]["hits"]  # pyramid, estimate
     assert first["jaxopt"] is True   # the trace needs it
     notes = [l for l in err.splitlines() if l.startswith("note:")]
     assert len(notes) == 1 and "compiling jaxvo's programs the first time on this machine" in notes[0]
@@ -320,7 +322,7 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     shutil.move(tmp_path / "cache", tmp_path / "moved")   # a moved (or copied) folder still hits
     second, err = _first_estimate(tmp_path / "moved")
     assert second["cold"] is False and not err.strip()
-    assert second["aot"] == {"executables": 1, "loaded": 0, "exported": 0, "fallbacks": 0}
+    assert second["aot"] == {"executables": 2, "loaded": 0, "exported": 0, "fallbacks": 0}
     assert second["jaxopt"] is False
     assert second["jax"]["requests"] == second["jax"]["hits"] > 0 and second["jax"]["repaired"] == 0
     assert sorted(p.name for p in (tmp_path / "moved").rglob("*") if p.is_file()) == entries

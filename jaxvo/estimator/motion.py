@@ -21,7 +21,7 @@ caller's ``vmap`` or ``jit`` the estimate is one program, pyramids included).
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Tuple, Union
+from typing import Dict, NamedTuple, Optional, Tuple, Union
 
 import jax
 import numpy as np
@@ -52,14 +52,30 @@ class PreparedFrame(NamedTuple):
     max_depth: float
 
 
-_frame_pyramid_jit = jax.jit(_frame_pyramid, static_argnums=2)
 _estimate_pyramids_call = jit_with_fallback(_estimate_pyramids)
+# per level count: the frame pyramid's program (run through its kept program, as the estimator)
+_PYRAMIDS: Dict[int, aot.Program] = {}
+
+
+def _levels(leaves) -> Tuple[Level, ...]:
+    """A pyramid from its leaves: four arrays per level (no weight, no size)."""
+    return tuple(Level(*leaves[i:i + 4], weight=None) for i in range(0, len(leaves), 4))
+
+
+def _pyramid_program(n: int) -> aot.Program:
+    """The program that builds a frame's ``n``-level pyramid (:func:`_frame_pyramid`), kept with the
+    estimator's (:mod:`jaxvo.runtime.aot`), so that a later process neither traces nor lowers it."""
+    if n not in _PYRAMIDS:
+        def frame_pyramid(intensity, depth, max_depth):
+            return _frame_pyramid(intensity, depth, n, max_depth)
+        _PYRAMIDS.setdefault(n, aot.Program(f"frame_pyramid_{n}", frame_pyramid, _levels))
+    return _PYRAMIDS[n]
 
 
 def _pyramid(intensity, depth, config: Config) -> Tuple[Level, ...]:
     """The pyramid of checked float32 (H, W) images for ``config`` (:func:`_frame_pyramid`)."""
     h, w = intensity.shape
-    return _frame_pyramid_jit(intensity, depth, num_levels(config, w, h), np.float32(config.max_depth))
+    return _pyramid_program(num_levels(config, w, h))(intensity, depth, np.float32(config.max_depth))
 
 
 def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None, what: str = "frame") -> PreparedFrame:
