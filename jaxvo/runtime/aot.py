@@ -9,7 +9,7 @@ programs about as much again). This module keeps, in the folder given to :func:`
 
 * its traced program, a ``jax.export`` serialization (``.jaxexport``): a later process
   deserializes it and compiles its call without tracing (a hit in JAX's cache);
-* the executable XLA compiled from it (``.xla``, ``jax.experimental.serialize_executable``),
+* on the CPU, the executable XLA compiled from it (``.xla``, ``jax.experimental.serialize_executable``),
   named also by the processor it was compiled for (:func:`jaxvo.runtime.machine.instruction_set`):
   a later process on such a processor loads it and calls it as it is, without lowering it or
   asking JAX's cache (at 640x480 about a fifth of a second less before the first pose). Only an
@@ -290,9 +290,10 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
 
     path = _FOLDER["path"] / (f"{name}-{environment_tag()}-"
                               f"{program_key(name, jax.tree.unflatten(tree, leaves))}.jaxexport")
-    executable = _executable_path(path)
+    # executables are kept on the CPU only, where their loading was measured and tested
+    executable = _executable_path(path) if jax.devices()[0].platform == "cpu" else None
     try:
-        compiled = _read_executable(executable, leaves)
+        compiled = None if executable is None else _read_executable(executable, leaves)
     except Exception:  # a corrupt or foreign file: compile afresh below
         compiled = None
     if compiled is not None:
@@ -331,7 +332,7 @@ def _program(name: str, fn: Callable, leaves, tree, compiler_options) -> Callabl
     compiled, fresh = _compile(jax.jit(run, in_shardings=sharding(), compiler_options=compiler_options), leaves)
     # only an executable XLA compiled here: on the CPU, one that JAX read from its cache and that
     # is serialized again names kernels its file then lacks (jax 0.10: "Function ... not found")
-    if fresh:
+    if fresh and executable is not None:
         try:
             _write_executable(executable, compiled, len(leaves))
         except Exception:  # noqa: BLE001 - a read-only or full folder, or a backend that cannot serialize
