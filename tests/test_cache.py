@@ -119,10 +119,10 @@ _scaled_jit = jax.jit(_scaled)
 def xla_compiles():
     """JAX's persistent cache off for the test: every compilation is XLA's own (so aot writes
     each program's executable whatever other tests of the worker compiled before)."""
-    before = jax.config.jax_enable_compilation_cache
-    jax.config.update("jax_enable_compilation_cache", False)
+    before = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", None)
     yield
-    jax.config.update("jax_enable_compilation_cache", before)
+    jax.config.update("jax_compilation_cache_dir", before)
 
 
 def _only(folder: Path, suffix: str) -> Path:
