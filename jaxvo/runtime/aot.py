@@ -69,7 +69,7 @@ __all__ = ["Program", "call", "compile_ahead", "enable", "environment_tag", "fol
 _MAGIC = b"jaxvo-exported-1\n"
 _EXECUTABLE_MAGIC = b"jaxvo-executable-1\n"
 _FOLDER: Dict[str, Optional[Path]] = {"path": None}
-# per (name, tree, argument signature) in this process: the jitted exported program, or None = use jit
+# per (name, tree, argument signature) in this process: the compiled program, or None = use jit
 _PROGRAMS: Dict[tuple, Optional[Callable]] = {}
 # one lock per memo key: a program made ready in a thread (compile_ahead) is read or traced once,
 # and a call that needs it meanwhile waits for it
@@ -249,8 +249,8 @@ def _read_executable(path: Path, leaves):
     n_out = int.from_bytes(blob[head:head + 4], "little")
     _lapack_ready()
     compiled = serialize_executable.deserialize_and_load(blob[head + 4:], *_trees(len(leaves), n_out))
-    args = jax.tree.leaves(compiled.args_info, is_leaf=lambda a: hasattr(a, "_aval"))
-    if [(a._aval.shape, a._aval.dtype) for a in args] != [(t.shape, t.dtype) for t in map(jax.typeof, leaves)]:
+    args = jax.tree.leaves(compiled.args_info, is_leaf=lambda a: hasattr(a, "donated"))   # jax.stages.ArgInfo
+    if [(a.shape, a.dtype) for a in args] != [(t.shape, t.dtype) for t in map(jax.typeof, leaves)]:
         return None
     return compiled
 
