@@ -18,6 +18,7 @@ import pytest
 
 from jaxvo.camera import LENSES, NO_LENS
 from jaxvo.config import Config, TrackConfig
+from jaxvo.tracking.segmentation import SegmentParams
 from jaxvo.data import data_root
 from jaxvo.runtime.machine import instruction_set
 
@@ -396,13 +397,20 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
     levers = _script("levers")
     v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}},'
                               ' "lens": {"lens": "bonn"}}')
-    assert v["base"] == (Config(), TrackConfig(), NO_LENS, None) and v["lens"][2] == LENSES["bonn"]
+    assert v["base"] == (Config(), TrackConfig(), NO_LENS, None, SegmentParams()) and v["lens"][2] == LENSES["bonn"]
     assert v["tiles"][0] == Config(blocks=(2, 4, 2, 1)) and v["tiles"][1].window == 1
     with pytest.raises(SystemExit, match="tiles: .*blocks"):
         levers.parse_variants('{"tiles": {"config": {"blocks": [0, 4]}}}')
     with pytest.raises(SystemExit, match="slow: .*windw"):
         levers.parse_variants('{"slow": {"policy": {"windw": 2}}}')
     assert levers.parse_variants('{"own": {"lens": "folder"}}')["own"][2] == "folder"
+    # the segmentation's parameters too (JSON's Infinity turns a test off); a misspelt or a
+    # non-numeric one stops with the variant's name
+    seg = levers.parse_variants('{"no test": {"segment": {"motion_gain": Infinity}}}')["no test"][4]
+    assert seg.motion_gain == float("inf") and seg.margin == SegmentParams().margin
+    for bad in ('{"m": {"segment": {"motion_gian": 1}}}', '{"m": {"segment": {"margin": "wide"}}}'):
+        with pytest.raises(SystemExit, match="m:"):
+            levers.parse_variants(bad)
     with pytest.raises(SystemExit, match="bent: lens must be"):
         levers.parse_variants('{"bent": {"lens": [0.1, 0.2]}}')
     assert [levers.parse_variants(f'{{"d": {{"depth_scale": {s}}}}}')["d"][3] for s in ('"folder"', '"fr2"', 5155)] \

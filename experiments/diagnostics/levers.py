@@ -1,8 +1,8 @@
 """What a change to the default odometry would buy in time and cost in accuracy, on whole sequences.
 
-Each variant changes fields of ``Config`` (the estimator) and/or ``TrackConfig`` (the policy) from
-the default, or reads the frames through a lens or with another depth scale (``--variants`` JSON:
-name -> {"config": {...}, "policy": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder",
+Each variant changes fields of ``Config`` (the estimator), ``TrackConfig`` (the policy) and/or
+``SegmentParams`` (the segmentation) from the default, or reads the frames through a lens or with another depth scale (``--variants`` JSON:
+name -> {"config": {...}, "policy": {...}, "segment": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder",
 "depth_scale": 5155, "fr2" or "folder"}, the lens as ``jaxvo run --lens``, the depth scale as
 ``jaxvo run --depth-scale``, "folder" the published one of each sequence's name: the frames as the
 reader gives them; the first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
@@ -38,6 +38,7 @@ from jaxvo.config import Config, TrackConfig  # noqa: E402
 from jaxvo.data.calibration import resolve_depth_scale  # noqa: E402
 from jaxvo.frame import undistort  # noqa: E402
 from jaxvo.tracking.odometry import Odometry  # noqa: E402
+from jaxvo.tracking.segmentation import SegmentParams  # noqa: E402
 
 DEFAULT_VARIANTS = json.dumps({
     "default": {},
@@ -52,7 +53,8 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("sequences", nargs="*", help="TUM-layout sequence folders (default: data_root()/bonn/"
                                                  "rgbd_bonn_crowd and data_root()/tum/rgbd_dataset_freiburg2_desk)")
     ap.add_argument("--variants", default=DEFAULT_VARIANTS,
-                    help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}, "lens": '
+                    help='JSON object: name -> {"config": {Config fields}, "policy": {TrackConfig fields}, '
+                         '"segment": {SegmentParams fields, e.g. {"motion_gain": Infinity}}, "lens": '
                          '"folder", a preset or 5 numbers, "depth_scale": a number, a sensor or "folder"}; the '
                          "first is the baseline (default: %(default)s)")
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated PRNG seeds (default 0,1,2)")
@@ -66,16 +68,21 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 def parse_variants(text: str) -> dict:
     """name -> (Config, TrackConfig, Lens or "folder", depth scale: None, a number, a sensor or
-    "folder"); a misspelt field or a bad value stops with the variant's name."""
-    raw = common.json_variants(text, '{"config": ..., "policy": ..., "lens": ..., "depth_scale": ...}')
+    "folder", SegmentParams); a misspelt field or a bad value stops with the variant's name."""
+    raw = common.json_variants(text, '{"config": ..., "policy": ..., "segment": ..., "lens": ..., "depth_scale": ...}')
     out = {}
     for name, spec in raw.items():
-        if not isinstance(spec, dict) or set(spec) - {"config", "policy", "lens", "depth_scale"}:
-            raise SystemExit(f"--variants: {name}: expected keys 'config', 'policy', 'lens' and/or 'depth_scale'")
+        if not isinstance(spec, dict) or set(spec) - {"config", "policy", "segment", "lens", "depth_scale"}:
+            raise SystemExit(f"--variants: {name}: expected keys 'config', 'policy', 'segment', 'lens' and/or "
+                             f"'depth_scale'")
         try:
             config = Config.from_dict(common.config_changes(json.dumps(spec.get("config", {}))))
             policy = TrackConfig(**spec.get("policy", {}))
             policy.validate()
+            segment = SegmentParams(**spec.get("segment", {}))
+            bad = [f for f, v in segment._asdict().items() if isinstance(v, bool) or not isinstance(v, (int, float))]
+            if bad:
+                raise ValueError(f"SegmentParams.{bad[0]} must be a number, got {getattr(segment, bad[0])!r}")
             lens = spec.get("lens", "none")
             lens = lens if lens == "folder" else Lens.parse(lens)
             scale = spec.get("depth_scale")
@@ -85,13 +92,13 @@ def parse_variants(text: str) -> dict:
                     raise ValueError(f"depth_scale must be a number > 0, a sensor or 'folder', got {scale!r}")
         except (TypeError, ValueError) as e:
             raise SystemExit(f"--variants: {name}: {e}")
-        out[name] = (config, policy, lens, scale)
+        out[name] = (config, policy, lens, scale, segment)
     return out
 
 
-def run_pass(seq, frames, config: Config, policy: TrackConfig, key):
+def run_pass(seq, frames, config: Config, policy: TrackConfig, key, segment: Optional[SegmentParams] = None):
     """One pass of the odometry: (per-frame seconds of frames 1.., relative motions, estimates, held)."""
-    odo = Odometry(seq.camera, config, key, policy)
+    odo = Odometry(seq.camera, config, key, policy, segment_params=segment)
     # counts the estimates by purpose; each is blocked on, as the odometry reads each at once anyway
     odo.timings = {}
     secs = []
@@ -121,7 +128,7 @@ def main(argv=None):
         results = {name: [] for name in variants}
         def reading(name):
             """(lens, depth scale) the variant reads the sequence with, "folder" resolved."""
-            lens, scale = variants[name][2:]
+            lens, scale = variants[name][2:4]
             return (lens_for_sequence(seq.name) if lens == "folder" else lens,
                     preset_for_sequence(seq.name) if scale == "folder" else scale)
 
@@ -131,14 +138,15 @@ def main(argv=None):
         # each reading's frames as the reader gives them (undistorted after decoding, before any noise)
         seen = {(lens, scale): [undistort(f, seq.camera, lens) for f in frames_read(scale)]
                 for lens, scale in {reading(n) for n in variants}}
-        for name, (config, policy, *_) in variants.items():   # warm-up: compile each variant
-            run_pass(seq, seen[reading(name)][:3], config, policy, jax.random.key(seeds[0]))
+        for name, (config, policy, _, _, segment) in variants.items():   # warm-up: compile each variant
+            run_pass(seq, seen[reading(name)][:3], config, policy, jax.random.key(seeds[0]), segment)
         for run, (seed, draw) in enumerate((s, d) for d in range(args.perturb) for s in seeds):
             inputs = {how: common.perturbed(fr, draw) for how, fr in seen.items()}
             order = list(variants) if run % 2 == 0 else list(variants)[::-1]
             for name in order:
-                config, policy, *_ = variants[name]
-                secs, rel, n_est, held = run_pass(seq, inputs[reading(name)], config, policy, jax.random.key(seed))
+                config, policy, _, _, segment = variants[name]
+                secs, rel, n_est, held = run_pass(seq, inputs[reading(name)], config, policy, jax.random.key(seed),
+                                                  segment)
                 times[name].append(secs)
                 results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
                 common.log(f"  seed {seed} input {draw} {name}: {secs.mean() * 1000:.1f} ms/frame, "
