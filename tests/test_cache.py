@@ -84,8 +84,9 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     exported = set(os.listdir(folder / "exported"))
     assert entries - {"exported"}, "the first runs wrote no compiled program into the cache folder"
     # each program's exported (traced) program and its compiled executable: the frames' pyramid
-    # (160x120 halves to 80x60: 2 levels), the estimator and the tracking's
-    names = sorted(["frame_pyramid_2", "estimate"] + [p.name for p in TRACKING])
+    # (160x120 halves to 80x60: 2 levels; the classic estimate reads no depth gradients: "_d"), the
+    # estimator and the tracking's
+    names = sorted(["frame_pyramid_2_d", "estimate"] + [p.name for p in TRACKING])
     assert sorted(e.split("-")[0] for e in exported if e.endswith(".jaxexport")) == names
     assert sorted(e.split("-")[0] for e in exported if e.endswith(".xla")) == names
 
@@ -97,7 +98,7 @@ def test_second_run_loads_compiled_estimator_from_cache(tmp_path):
     traced = set(re.findall(r"Finished tracing (\S+) for", third.stderr))
     # nor does it lower them: their executables are read as they are
     assert traced and not traced & {"estimate_exported", "_estimate", "_estimate_pyramids", "call_estimate",
-                                    "_frame_pyramid", "frame_pyramid", "call_frame_pyramid_2",
+                                    "_frame_pyramid", "frame_pyramid", "call_frame_pyramid_2_d",
                                     *(f"{p.name}_exported" for p in TRACKING), *(p.fn.__name__ for p in TRACKING),
                                     *(f"call_{p.name}" for p in TRACKING)}
     assert set(os.listdir(folder)) == entries and set(os.listdir(folder / "exported")) == exported

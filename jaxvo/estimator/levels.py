@@ -11,6 +11,7 @@ matrix and the failure flag (:mod:`jaxvo.estimator.trust`).
 from __future__ import annotations
 
 import functools
+from typing import Tuple
 
 import jax
 import jax.numpy as jnp
@@ -28,7 +29,8 @@ from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import irls, jit, solve_pose, solve_pose_small
 from jaxvo.estimator.trust import final_counts, final_residuals, trust_stats, trusted
 
-__all__ = ["estimate_arrays", "estimate_arrays_jit", "level_block", "trace_count"]
+__all__ = ["depth_gradient_levels", "estimate_arrays", "estimate_arrays_jit", "level_block", "reads_depth_gradients",
+           "trace_count"]
 
 
 _TRACES = {"count": 0}
@@ -124,12 +126,30 @@ def _level_inputs(ref_pyr, cur_pyr, camera: Camera, config: Config, levels):
     # only what the body reads: the reference's pixels for RANSAC's samples, the current
     # level's images for the warped points (select_points above read the rest)
     ransac = config.method == "ransac" and levels[0] >= config.ransac_finest
-    rgbd = config.terms == "rgbd" or (ransac and config.hypothesis_terms == "rgbd")
+    rgbd = reads_depth_gradients(config, levels[0])
     ref = stack_padded([ref_pyr[l] for l in levels], ("intensity", "depth", "weight") if ransac else ())
     cur = stack_padded([cur_pyr[l] for l in levels], ("intensity", "depth", "igrad") + (("dgrad",) if rgbd else ()))
     xs = (jnp.asarray(levels, jnp.int32), ref.size, cur.size, cam, _stack_points(pts), _stack_points(score),
           _stack_points(grid))
     return xs, (ref._replace(size=None), cur._replace(size=None))
+
+
+def reads_depth_gradients(config: Config, level: int) -> bool:
+    """Whether the estimate with ``config`` reads the current frame's depth gradients
+    (``Level.dgrad``) at pyramid ``level``: where a refinement minimises the joint RGB-D cost
+    (``Config.terms``), or RANSAC fits its hypotheses on it (``Config.hypothesis_terms``), on a
+    level it processes. Elsewhere the depth is sampled at the nearest pixel (the residuals, the
+    masks and statistics) and its gradients are never read."""
+    if level < config.finest_level:
+        return False
+    ransac = config.method == "ransac" and level >= config.ransac_finest
+    return config.terms == "rgbd" or (ransac and config.hypothesis_terms == "rgbd")
+
+
+def depth_gradient_levels(config: Config, num_levels: int) -> Tuple[int, ...]:
+    """The levels of a ``num_levels`` pyramid whose depth gradients an estimate with ``config`` reads
+    (:func:`reads_depth_gradients`), finest first: with the defaults the RANSAC levels, 1 and up."""
+    return tuple(level for level in range(num_levels) if reads_depth_gradients(config, level))
 
 
 def _level_points(ref_l, cam, config: Config, level: int):
@@ -223,10 +243,15 @@ def _estimate(ref_int, ref_depth, cur_int, cur_depth, camera: Camera, config: Co
     return _coarse_to_fine(ref_pyr, cur_pyr, camera, config, key, T_init)
 
 
-def _frame_pyramid(intensity, depth, num_levels: int, max_depth):
-    """A frame's pyramid without weights (``Level.weight`` None): what every estimate it takes
-    part in reads of it, as :func:`_estimate` builds it."""
-    return tuple(level._replace(weight=None) for level in build_pyramid(intensity, depth, num_levels, max_depth))
+def _frame_pyramid(intensity, depth, num_levels: int, max_depth, dgrad_levels: Tuple[int, ...]):
+    """A frame's pyramid without weights (``Level.weight`` None) and with depth gradients
+    (``Level.dgrad``) only on ``dgrad_levels`` (None elsewhere, :func:`depth_gradient_levels`):
+    what every estimate it takes part in reads of it, as :func:`_estimate` builds it. (Inside
+    :func:`_estimate` XLA drops what the estimate does not read; a pyramid returned by a program of
+    its own holds what it returns: at 640x480 the full-resolution depth gradients are a 4.9 MB
+    array and a third of the time of the program.)"""
+    return tuple(level._replace(weight=None, dgrad=level.dgrad if i in dgrad_levels else None)
+                 for i, level in enumerate(build_pyramid(intensity, depth, num_levels, max_depth)))
 
 
 def _estimate_pyramids(ref_pyr, cur_pyr, camera: Camera, config: Config, key, T_init, ref_weight):

@@ -29,7 +29,8 @@ import numpy as np
 from jaxvo.camera import Camera
 from jaxvo.config import Config
 from jaxvo.estimator.inputs import as_float32, checked_config, estimate_args, num_levels
-from jaxvo.estimator.levels import _estimate, _estimate_call, _estimate_pyramids, _frame_pyramid, jit_with_fallback
+from jaxvo.estimator.levels import (_estimate, _estimate_call, _estimate_pyramids, _frame_pyramid, depth_gradient_levels,
+                                    jit_with_fallback)
 from jaxvo.estimator.pyramid import Level
 from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import COMPILER_OPTIONS
@@ -45,7 +46,9 @@ class PreparedFrame(NamedTuple):
 
     frame: the :class:`Frame`. levels: its pyramid (:class:`jaxvo.estimator.pyramid.Level` per
     level, index 0 = full resolution, float32 device arrays; ``weight`` None: the weights are an
-    estimate's own). max_depth: metres, the ``Config.max_depth`` it was built with.
+    estimate's own; ``dgrad`` None on the levels where an estimate with the config it was prepared
+    for never reads depth gradients, :func:`jaxvo.estimator.levels.depth_gradient_levels`).
+    max_depth: metres, the ``Config.max_depth`` it was built with.
     """
     frame: Frame
     levels: Tuple[Level, ...]
@@ -53,29 +56,52 @@ class PreparedFrame(NamedTuple):
 
 
 _estimate_pyramids_call = jit_with_fallback(_estimate_pyramids)
-# per level count: the frame pyramid's program (run through its kept program, as the estimator)
-_PYRAMIDS: Dict[int, aot.Program] = {}
+# per (level count, levels with depth gradients): the frame pyramid's program (run through its
+# kept program, as the estimator)
+_PYRAMIDS: Dict[Tuple[int, Tuple[int, ...]], aot.Program] = {}
 
 
-def _levels(leaves) -> Tuple[Level, ...]:
-    """A pyramid from its leaves: four arrays per level (no weight, no size)."""
-    return tuple(Level(*leaves[i:i + 4], weight=None) for i in range(0, len(leaves), 4))
-
-
-def _pyramid_program(n: int) -> aot.Program:
-    """The program that builds a frame's ``n``-level pyramid (:func:`_frame_pyramid`), kept with the
-    estimator's (:mod:`jaxvo.runtime.aot`), so that a later process neither traces nor lowers it."""
-    if n not in _PYRAMIDS:
+def _pyramid_program(n: int, dgrad_levels: Tuple[int, ...]) -> aot.Program:
+    """The program that builds a frame's ``n``-level pyramid with depth gradients on ``dgrad_levels``
+    (:func:`_frame_pyramid`), kept with the estimator's (:mod:`jaxvo.runtime.aot`), so that a
+    later process neither traces nor lowers it."""
+    if (n, dgrad_levels) not in _PYRAMIDS:
         def frame_pyramid(intensity, depth, max_depth):
-            return _frame_pyramid(intensity, depth, n, max_depth)
-        _PYRAMIDS.setdefault(n, aot.Program(f"frame_pyramid_{n}", frame_pyramid, _levels))
-    return _PYRAMIDS[n]
+            return _frame_pyramid(intensity, depth, n, max_depth, dgrad_levels)
+
+        def levels(leaves) -> Tuple[Level, ...]:
+            # the pyramid from its leaves: three arrays per level, four with depth gradients
+            out, i = [], 0
+            for level in range(n):
+                k = 4 if level in dgrad_levels else 3
+                out.append(Level(*leaves[i:i + k], *([None] * (4 - k)), weight=None))
+                i += k
+            return tuple(out)
+        name = f"frame_pyramid_{n}_d{''.join(map(str, dgrad_levels))}"
+        _PYRAMIDS.setdefault((n, dgrad_levels), aot.Program(name, frame_pyramid, levels))
+    return _PYRAMIDS[(n, dgrad_levels)]
 
 
 def _pyramid(intensity, depth, config: Config) -> Tuple[Level, ...]:
-    """The pyramid of checked float32 (H, W) images for ``config`` (:func:`_frame_pyramid`)."""
+    """The pyramid of checked float32 (H, W) images for ``config`` (:func:`_frame_pyramid`): with
+    the depth gradients the estimates with ``config`` read (:func:`depth_gradient_levels`)."""
     h, w = intensity.shape
-    return _pyramid_program(num_levels(config, w, h))(intensity, depth, np.float32(config.max_depth))
+    n = num_levels(config, w, h)
+    return _pyramid_program(n, depth_gradient_levels(config, n))(intensity, depth, np.float32(config.max_depth))
+
+
+def _read_by(levels: Tuple[Level, ...], config: Config, name: str) -> Tuple[Level, ...]:
+    """A frame's ``levels`` as the estimate with ``config`` reads them as its ``name`` frame
+    ("reference" or "current"): depth gradients kept only where it reads them (the current
+    frame's, :func:`depth_gradient_levels`; never the reference's), so that there is one compiled
+    estimate per config whatever config a frame was prepared with; ValueError naming the frame
+    where a level read has none."""
+    needed = depth_gradient_levels(config, len(levels)) if name == "current" else ()
+    if any(levels[i].dgrad is None for i in needed):
+        raise ValueError(f"{name} frame was prepared for another config (no depth gradients on pyramid levels "
+                         f"{[i for i in needed if levels[i].dgrad is None]}, which this config reads); prepare it "
+                         "with this one (jaxvo.estimator.prepare_frame)")
+    return tuple(level if i in needed else level._replace(dgrad=None) for i, level in enumerate(levels))
 
 
 def prepare_frame(frame: Frame, camera: Camera, config: Optional[Config] = None, what: str = "frame") -> PreparedFrame:
@@ -135,8 +161,10 @@ def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, Prepared
                              f"{p.max_depth}); prepare it with this one (jaxvo.estimator.prepare_frame)")
     # the frames' pyramids, then the estimate from them: the program an odometry's prepared frames
     # run too (one compilation serves both)
-    ref_levels = ref.levels if isinstance(ref, PreparedFrame) else _pyramid(args.ref_intensity, args.ref_depth, config)
-    cur_levels = cur.levels if isinstance(cur, PreparedFrame) else _pyramid(args.cur_intensity, args.cur_depth, config)
+    ref_levels = _read_by(ref.levels if isinstance(ref, PreparedFrame)
+                          else _pyramid(args.ref_intensity, args.ref_depth, config), config, "reference")
+    cur_levels = _read_by(cur.levels if isinstance(cur, PreparedFrame)
+                          else _pyramid(args.cur_intensity, args.cur_depth, config), config, "current")
     leaves = (ref_levels, cur_levels, camera, config, args.key, args.T_init, args.ref_weight)
     # through the program exported into the cache folder when the cache is on (jaxvo.runtime.cache,
     # by default): a second process then skips tracing; else plain jit (the arguments as a

@@ -227,6 +227,22 @@ def test_prepared_frames_give_the_frames_estimate_without_a_retrace(dynamic_pair
     cfg = Config(method="ransac")
     with pytest.raises(ValueError, match="prepared for another config"):
         estimate_motion(pa, pb, CAM, cfg.replace(max_depth=3.0), key)
+    # the depth gradients: only on the levels an estimate reads them (the default: RANSAC's
+    # hypotheses on levels 1-3; classic: none); a frame prepared with more serves, one with fewer not
+    pr = prepare_frame(fa, CAM, cfg)
+    assert [lv.dgrad is None for lv in pr.levels] == [True, False, False, False]
+    assert pr.levels[1].dgrad.shape == (240, 320, 4)
+    assert all(lv.dgrad is None for lv in pa.levels)   # classic, the last config above
+    rgbd = Config(method="classic", terms="rgbd")
+    full = prepare_frame(fa, CAM, rgbd)
+    assert all(lv.dgrad is not None for lv in full.levels)
+    e = estimate_motion(full, pb, CAM, Config(method="classic"), key)
+    assert np.array_equal(np.asarray(e.T_cur_ref), np.asarray(estimate_motion(fa, fb, CAM, Config(method="classic"), key).T_cur_ref))
+    with pytest.raises(ValueError, match=r"current frame was prepared for another config \(no depth gradients on pyramid levels \[0, 1, 2, 3\]"):
+        estimate_motion(full, pa, CAM, rgbd, key)
+    # the reference's are never read
+    assert np.array_equal(np.asarray(estimate_motion(pa, prepare_frame(fb, CAM, rgbd), CAM, rgbd, key).T_cur_ref),
+                          np.asarray(estimate_motion(fa, fb, CAM, rgbd, key).T_cur_ref))
     with pytest.raises(ValueError, match="prepared for another config"):
         estimate_motion(prepare_frame(fa, CAM, Config(num_levels=3)), pb, CAM, cfg, key)
 
