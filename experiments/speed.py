@@ -428,8 +428,9 @@ def time_default(sets, repeats: int, key):
 
     rows, parts = [], []
     for set_name, (seq, frames) in sets.items():
+        c0 = time.process_time()
         opencv = common.run_method("opencv-rgb", frames, seq.camera)   # warm-up included
-        cv_secs = [opencv["seconds"]]
+        cv_secs, cv_cpu = [opencv["seconds"]], [time.process_time() - c0]
         for label, changes in DEFAULT_POLICIES:
             policy = TrackConfig(**changes)
 
@@ -439,31 +440,40 @@ def time_default(sets, repeats: int, key):
                     odo.timings = {}
                     odo.static_map = _TimedStaticMap.make(seq.camera, odo.config.max_depth, odo.params, odo.timings)
                 secs = []
+                c = time.process_time()
                 for f in frames:
                     t = time.perf_counter()
                     odo.add(f)
                     secs.append(time.perf_counter() - t)
-                return odo, np.asarray(secs)   # frame 0: no estimate, its map inputs
+                # frame 0: no estimate, its map inputs; CPU: every thread of the process (XLA's and the host's)
+                return odo, np.asarray(secs), time.process_time() - c
 
             t0 = time.perf_counter()
-            odo, _ = one_pass()
+            odo, _, _ = one_pass()
             warm = time.perf_counter() - t0
-            secs = []
+            secs, cpu = [], []
             for _ in range(repeats):
-                secs.append(one_pass()[1][1:])
+                _, s_t, c_t = one_pass()
+                secs.append(s_t[1:])
+                cpu.append(c_t / len(s_t))
+                c0 = time.process_time()
                 cv_secs.append(common.run_method("opencv-rgb", frames, seq.camera, warmup=False)["seconds"])
+                cv_cpu.append(time.process_time() - c0)
             st = common.timing_stats(np.concatenate(secs))
             cv = common.timing_stats(np.concatenate(cv_secs))
+            cv_pairs = len(frames) - 1
             held = int(np.sum(~np.asarray(odo.valid)))
             rows.append({"method": label, "set": set_name, "sequence": seq.name, "frames": len(frames), **st,
                          "opencv_mean_ms": cv["mean_ms"], "opencv_median_ms": cv["median_ms"],
                          "ratio_mean": st["mean_ms"] / cv["mean_ms"], "ratio_median": st["median_ms"] / cv["median_ms"],
+                         "cpu_ms": 1000 * float(np.mean(cpu)),
+                         "opencv_cpu_ms": 1000 * float(np.mean(cv_cpu[1:])) / cv_pairs,
                          "compile_s": max(0.0, warm - float(np.mean([s.sum() for s in secs]))), "held": held,
                          "switches": len(set(odo.references))})
             common.log(f"  {label} {set_name}: mean {st['mean_ms']:.1f} ms/frame (median {st['median_ms']:.1f}); "
                        f"OpenCV mean {cv['mean_ms']:.1f} ({cv['median_ms']:.1f}): {rows[-1]['ratio_mean']:.2f}x mean, "
                        f"{rows[-1]['ratio_median']:.2f}x median")
-            odo, psecs = one_pass(profile=True)
+            odo, psecs, _ = one_pass(profile=True)
             total = float(psecs.sum())     # frame 0 included: its map inputs are timed too
             n = len(psecs) - 1
             timed = 0.0
@@ -686,13 +696,17 @@ def main(argv=None) -> Path:
                   f"everything; {args.repeats} timed passes, each followed by a pass of OpenCV's RGB odometry "
                   "over the same consecutive pairs (conversion and frame preparation included), so that a "
                   "passing load weighs on both. `compile s`: the warm-up pass minus a timed pass (in this "
-                  "process, after the sections above compiled the estimator). `held`: frames whose estimate "
+                  "process, after the sections above compiled the estimator). `cpu ms`: the process's CPU "
+                  "time (every thread: XLA runs a program's kernels on all cores) per frame over the timed "
+                  "passes, beside OpenCV's per pair (one core); their ratio says how much of the wall-time "
+                  "ratio is work and how much is parallelism. `held`: frames whose estimate "
                   "failed; `references`: distinct reference frames.", ""]
         lines += common.md_table(drows, [("odometry", "method", ""), ("set", "set", ""), ("frames", "frames", "d"),
                                          ("mean ms/frame", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
                                          ("p90 ms", "p90_ms", ".1f"), ("OpenCV mean ms", "opencv_mean_ms", ".1f"),
                                          ("OpenCV median ms", "opencv_median_ms", ".1f"),
                                          ("ratio mean", "ratio_mean", ".2f"), ("ratio median", "ratio_median", ".2f"),
+                                         ("cpu ms/frame", "cpu_ms", ".1f"), ("OpenCV cpu ms", "opencv_cpu_ms", ".1f"),
                                          ("compile s", "compile_s", ".1f"), ("held", "held", "d"),
                                          ("references", "switches", "d")]) + [""]
         lines += _default_targets(drows)
