@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -138,6 +139,25 @@ def test_speed_quick(tmp_path):
     assert all(r["max_dev_vs_loop"] < 1e-3 for r in data["batch"])
     assert [r["frames"] for r in data["track_memory"]] == [3, 6]
     assert data["peak_rss_mb"] > 0
+
+
+def test_speed_times_the_default_odometry_against_opencv(tmp_path):
+    """speed.py's section on the default odometry over whole sequences (skipped by --quick above):
+    per-frame wall and CPU time of both policies beside OpenCV's over the same pairs, their
+    ratios, and the profiled pass's breakdown, whose parts add up to the pass."""
+    speed = _script("speed")
+    if not speed.common.peer_available("opencv-rgb"):
+        pytest.skip("OpenCV is not installed")
+    seq = speed.common.open_sequence(speed.common.synthetic_sequence(tmp_path / "seq", 5))
+    rows, parts = speed.time_default({"dynamic": (seq, speed.common.load_frames(seq))}, 1, jax.random.key(0))
+    assert [r["method"] for r in rows] == [label for label, _ in speed.DEFAULT_POLICIES]
+    for r in rows:
+        assert r["frames"] == 5 and r["mean_ms"] > 0 and r["cpu_ms"] > 0 and r["opencv_cpu_ms"] > 0
+        assert r["ratio_mean"] == pytest.approx(r["mean_ms"] / r["opencv_mean_ms"])
+        mine = [p for p in parts if p["method"] == r["method"]]
+        total = [p for p in mine if p["part"] == "profiled pass, all"][0]["ms_per_frame"]
+        assert sum(p["ms_per_frame"] for p in mine if p["part"] != "profiled pass, all") == pytest.approx(total)
+        assert any(p["part"] == "estimate: track" for p in mine)
 
 
 def test_sweep_quick(tmp_path, cache):
