@@ -158,8 +158,11 @@ def find_named(name: str) -> Optional[Path]:
         return None
 
 
-def open_sequence(path, max_frames: Optional[int] = None, start: int = 0, depth_scale=None) -> datasets.TumSequence:
-    return datasets.TumSequence(path, max_frames=max_frames, start=start, depth_scale=depth_scale)
+def open_sequence(path, max_frames: Optional[int] = None, start: int = 0, depth_scale=None,
+                  lens=None) -> datasets.TumSequence:
+    """The reader of every experiment: ``depth_scale`` and ``lens`` None read the folder as ``jaxvo run``
+    does (a TUM fr1/fr2 or Bonn folder with its published lens and depth correction)."""
+    return datasets.TumSequence(path, max_frames=max_frames, start=start, depth_scale=depth_scale, lens=lens)
 
 
 def load_frames(seq: datasets.TumSequence, indices: Optional[Iterable[int]] = None) -> list:

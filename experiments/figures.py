@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 import jax  # noqa: E402
 from jaxvo import viz
 from jaxvo.tracking import hindsight
+from jaxvo.frame import undistort_images  # noqa: E402
 from jaxvo.data import ply  # noqa: E402
 from jaxvo.pipelines import mapping  # noqa: E402
 from jaxvo.config import Config, TrackConfig
@@ -100,7 +101,7 @@ def main(argv=None):
     used = refs[:: max(1, round(args.every * len(refs) / len(frames)))]
     clouds = []
     for i in used:
-        bgr, dep = seq.read_images(i)
+        bgr, dep = undistort_images(*seq.read_images(i), seq.camera, seq.lens)
         P, C, (r, c) = mapping.backproject_frame(np.ascontiguousarray(bgr[..., ::-1]),
                                                  dep.astype(np.float64) / seq.depth_scale, seq.camera,
                                                  tr.poses[i], 4.0, 2)

@@ -204,8 +204,15 @@ class PairSet(NamedTuple):
         return len(self.frames) - 1
 
 
+#: how the real sequences are read here: the files as they are (no lens, the layout's depth scale),
+#: not with a dataset's published calibration as ``jaxvo run`` reads them. This script measures time
+#: and the agreement of the accelerator with the CPU on the same inputs, which the reading does not
+#: change; reading the files as they are keeps its stored results those of this command.
+AS_RECORDED = {"lens": "none", "depth_scale": "recorded"}
+
+
 def load_set(name: str, path: Path, n_pairs: int) -> PairSet:
-    seq = TumSequence(path, max_frames=n_pairs + 1)
+    seq = TumSequence(path, max_frames=n_pairs + 1, **AS_RECORDED)
     frames = [seq.frame(i) for i in range(len(seq))]
     log(f"{name}: {len(frames)} frames {seq.camera.width}x{seq.camera.height} from {path}")
     return PairSet(name, seq.camera, frames, pair_keys(len(frames) - 1))
@@ -573,7 +580,7 @@ def time_multi(sets: List[PairSet], paths: Dict[str, Path], n: int, frames: int,
            "first_run_s": first, "wall_s": wall, "pairs_per_s": pairs / wall, "ms_per_step": 1000 * wall / (frames - 1),
            "failed": int(sum(np.sum(~t.valid) for t in tracks))}
     log(f"  track_batch {n} x {frames} frames: {wall:.2f} s = {row['pairs_per_s']:.1f} pairs/s")
-    seqs = [TumSequence(paths[s.name], start=a, max_frames=frames) for s, a in chosen]
+    seqs = [TumSequence(paths[s.name], start=a, max_frames=frames, **AS_RECORDED) for s, a in chosen]
     t0 = time.perf_counter()
     results = run_sequences(seqs, Config(), seed=0)
     wall = time.perf_counter() - t0

@@ -29,7 +29,7 @@ import common
 import numpy as np  # noqa: E402
 
 import jax  # noqa: E402
-from jaxvo.camera import preset_for_sequence  # noqa: E402
+from jaxvo.camera import LENSES, Lens, preset_for_sequence  # noqa: E402
 from jaxvo.config import Config  # noqa: E402
 from jaxvo.data.calibration import parse_depth_scale  # noqa: E402
 
@@ -46,9 +46,13 @@ def parse_args(argv=None):
                          f"everything (default {DEFAULT_METHODS}; unavailable peers are skipped)")
     ap.add_argument("--max-frames", type=int, default=None, help="use at most N frames per sequence")
     ap.add_argument("--depth-scale", default=None,
-                    help="read the real sequences' depth at this scale (as jaxvo run --depth-scale: a number, or "
-                         "fr1 / fr2 for TUM's published depth correction), or 'folder': each sequence's published "
-                         "correction (jaxvo.camera.DEPTH_CORRECTIONS); default the layout's")
+                    help="read the real sequences' depth at this scale (as jaxvo run --depth-scale: a number, "
+                         "fr1 / fr2 for TUM's published depth correction, 'recorded' for the layout's as it is), or "
+                         "'folder': each sequence's published correction (jaxvo.camera.DEPTH_CORRECTIONS); default "
+                         "the reader's (the folder's sensor's)")
+    ap.add_argument("--lens", default=None,
+                    help="read the real sequences through this lens (as jaxvo run --lens: 5 numbers, fr1 / fr2 / "
+                         "bonn, or 'none' for the images as they are); default the reader's (the folder's sensor's)")
     ap.add_argument("--no-augment", action="store_true", help="skip the dynamic augmentations")
     ap.add_argument("--persons", type=int, default=2, help="augmentation: moving occluders (default 2)")
     ap.add_argument("--coverage", type=float, default=0.3, help="augmentation: image coverage (default 0.3)")
@@ -67,10 +71,12 @@ def parse_args(argv=None):
 
 
 def run_sequence(path: Path, methods, args, kind: str):
-    scale = None
+    scale = lens = None
     if kind == "real" and args.depth_scale is not None:
         scale = preset_for_sequence(path.name) if args.depth_scale == "folder" else parse_depth_scale(args.depth_scale)
-    seq = common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale)
+    if kind == "real" and args.lens is not None:
+        lens = Lens.parse(args.lens)
+    seq = common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale, lens=lens)
     common.log(f"[table1] {seq.name}: {len(seq)} frames, {kind}")
     frames = common.load_frames(seq)
     span = float(seq.timestamps[-1] - seq.timestamps[0])
@@ -82,7 +88,7 @@ def run_sequence(path: Path, methods, args, kind: str):
         pe = common.relative_errors(seq, res["relative"])
         st = common.timing_stats(res["seconds"])
         row = {"sequence": seq.name, "kind": kind, "frames": len(seq), "span_s": span, "method": m,
-               "depth_scale": seq.depth_scale,
+               "depth_scale": seq.depth_scale, "lens": "none" if seq.lens.is_pinhole else seq.sensor if seq.lens == LENSES.get(seq.sensor) else "given",
                "paper_rpe1s_t": common.paper_rpe(path) if m == "ransac" else None,
                "median_ms": st["median_ms"], "pair_t_median_mm": _nanmed(pe["trans"]) * 1000.0,
                "pair_r_median_deg": _nanmed(pe["rot"]), "failures": int(np.sum(~res["valid"])),
@@ -101,7 +107,7 @@ def _nanmed(x) -> float:
 
 
 COLUMNS = [
-    ("sequence", "sequence", ""), ("frames", "frames", "d"), ("depth scale", "depth_scale", "g"),
+    ("sequence", "sequence", ""), ("frames", "frames", "d"), ("depth scale", "depth_scale", "g"), ("lens", "lens", ""),
     ("method", "method", ""),
     ("RPE-t 1 s (m/s)", "rpe1s_t", ".4f"), ("paper RANSAC RPE-t 1 s (m/s)", "paper_rpe1s_t", ".4f"),
     ("RPE-r 1 s (deg/s)", "rpe1s_r", ".3f"),

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxvo.validation import check_values, choice, number
 
-__all__ = ["Frame", "make_frame", "undistort", "luminance", "validate_pair", "validate_frame", "check_frame",
+__all__ = ["Frame", "make_frame", "undistort", "undistort_images", "luminance", "validate_pair", "validate_frame", "check_frame",
            "suggest_depth_scale",
            "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
@@ -161,17 +161,8 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
 _MAPS: dict = {}   # (intrinsics, size, lens) -> undistortion_map
 
 
-def undistort(frame: Frame, camera, lens) -> Frame:
-    """``frame`` as the pinhole ``camera`` would image it, for a recording made through ``lens``
-    (:class:`jaxvo.camera.Lens`; the images are (camera.height, camera.width)): each pixel reads the
-    distorted images where :func:`jaxvo.camera.undistortion_map` puts it. Intensity bilinear
-    (edge pixels repeated beyond the border), depth and mask nearest (a depth is never blended
-    across an edge; beyond the border: depth 0, i.e. invalid, mask False). A pinhole lens
-    returns ``frame`` itself."""
-    if lens.is_pinhole:
-        return frame
-    import cv2
-
+def _undistortion_maps(camera, lens):
+    """The cached :func:`jaxvo.camera.undistortion_map` of ``camera`` and ``lens``."""
     from jaxvo.camera import undistortion_map
 
     key = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), camera.width, camera.height,
@@ -182,15 +173,40 @@ def undistort(frame: Frame, camera, lens) -> Frame:
         # float maps: OpenCV's fixed-point maps (convertMaps) would floor, not round, the nearest
         # pixel, shifting depth by half a pixel against the intensity
         _MAPS[key] = undistortion_map(camera, lens)
-    m1, m2 = _MAPS[key]
-    intensity = cv2.remap(np.asarray(frame.intensity, np.float32), m1, m2, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_REPLICATE)
-    depth = cv2.remap(np.asarray(frame.depth, np.float32), m1, m2, cv2.INTER_NEAREST,
-                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    mask = None if frame.mask is None else cv2.remap(
-        np.asarray(frame.mask).astype(np.uint8), m1, m2, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-        borderValue=0) != 0
+    return _MAPS[key]
+
+
+def _remap(image, maps, linear: bool):
+    import cv2
+    if linear:
+        return cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.remap(image, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def undistort(frame: Frame, camera, lens) -> Frame:
+    """``frame`` as the pinhole ``camera`` would image it, for a recording made through ``lens``
+    (:class:`jaxvo.camera.Lens`; the images are (camera.height, camera.width)): each pixel reads the
+    distorted images where :func:`jaxvo.camera.undistortion_map` puts it. Intensity bilinear
+    (edge pixels repeated beyond the border), depth and mask nearest (a depth is never blended
+    across an edge; beyond the border: depth 0, i.e. invalid, mask False). A pinhole lens
+    returns ``frame`` itself."""
+    if lens.is_pinhole:
+        return frame
+    maps = _undistortion_maps(camera, lens)
+    intensity = _remap(np.asarray(frame.intensity, np.float32), maps, True)
+    depth = _remap(np.asarray(frame.depth, np.float32), maps, False)
+    mask = None if frame.mask is None else _remap(np.asarray(frame.mask).astype(np.uint8), maps, False) != 0
     return Frame(intensity, depth, mask)
+
+
+def undistort_images(color, depth, camera, lens):
+    """(color, depth) images (any dtypes; (H, W, C) and (H, W)) as the pinhole ``camera`` would
+    image them through ``lens``, resampled as :func:`undistort` does (colour bilinear, depth
+    nearest, 0 beyond the border); a pinhole lens returns them as they are."""
+    if lens.is_pinhole:
+        return color, depth
+    maps = _undistortion_maps(camera, lens)
+    return _remap(np.asarray(color), maps, True), _remap(np.asarray(depth), maps, False)
 
 
 def check_frame(frame, what: str = "frame") -> None:

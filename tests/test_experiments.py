@@ -65,11 +65,12 @@ def test_table1_quick(tmp_path, cache):
     _require(STATIC)
     out = tmp_path / "table1.md"
     _script("table1").main([str(STATIC), "--quick", "--methods", "classic,opencv-rgb", "--cache", str(cache),
-                            "--depth-scale", "folder", "--out", str(out)])
+                            "--out", str(out)])
     text = out.read_text()
     assert "python experiments/table1.py" in text and "CPUs" in text and "jax " in text
-    # --depth-scale folder: fr2's published correction on the real frames; the augmentation's own depth as written
-    assert "| rgbd_dataset_freiburg2_desk | 3 | 5155 | classic |" in text and "| 3 | 5000 | classic |" in text
+    # the reader's default: fr2's published lens and depth correction on the real frames; the
+    # augmentation (its own info.json intrinsics) as written
+    assert "| rgbd_dataset_freiburg2_desk | 3 | 5155 | fr2 | classic |" in text and "| 3 | 5000 | none | classic |" in text
     assert "opencv-rgb" in text and "Dynamic augmentations" in text
     data = json.loads(out.with_suffix(".json").read_text())
     rows = {(r["kind"], r["method"]): r for r in data["rows"]}
@@ -417,7 +418,7 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
     levers = _script("levers")
     v = levers.parse_variants('{"base": {}, "tiles": {"config": {"blocks": [2, 4, 2, 1]}, "policy": {"window": 1}},'
                               ' "lens": {"lens": "bonn"}}')
-    assert v["base"] == (Config(), TrackConfig(), NO_LENS, None, SegmentParams()) and v["lens"][2] == LENSES["bonn"]
+    assert v["base"] == (Config(), TrackConfig(), None, None, SegmentParams()) and v["lens"][2] == LENSES["bonn"]
     assert v["tiles"][0] == Config(blocks=(2, 4, 2, 1)) and v["tiles"][1].window == 1
     with pytest.raises(SystemExit, match="tiles: .*blocks"):
         levers.parse_variants('{"tiles": {"config": {"blocks": [0, 4]}}}')
@@ -435,6 +436,9 @@ def test_levers_variants_take_json_lists_and_name_a_bad_field():
         levers.parse_variants('{"bent": {"lens": [0.1, 0.2]}}')
     assert [levers.parse_variants(f'{{"d": {{"depth_scale": {s}}}}}')["d"][3] for s in ('"folder"', '"fr2"', 5155)] \
         == ["folder", "fr2", 5155]
+    # the files as they are: no lens, the layout's scale
+    raw = levers.parse_variants('{"raw": {"lens": "none", "depth_scale": "recorded"}}')["raw"]
+    assert raw[2] == NO_LENS and raw[3] == "recorded"
     for bad in ('"fr9"', "-1"):
         with pytest.raises(SystemExit, match="far: .*depth_scale must be"):
             levers.parse_variants(f'{{"far": {{"depth_scale": {bad}}}}}')

@@ -2,10 +2,12 @@
 
 Each variant changes fields of ``Config`` (the estimator), ``TrackConfig`` (the policy) and/or
 ``SegmentParams`` (the segmentation) from the default, or reads the frames through a lens or with another depth scale (``--variants`` JSON:
-name -> {"config": {...}, "policy": {...}, "segment": {...}, "lens": "bonn", [k1, k2, p1, p2, k3] or "folder",
-"depth_scale": 5155, "fr2" or "folder"}, the lens as ``jaxvo run --lens``, the depth scale as
-``jaxvo run --depth-scale``, "folder" the published one of each sequence's name: the frames as the
-reader gives them; the first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
+name -> {"config": {...}, "policy": {...}, "segment": {...}, "lens": "bonn", [k1, k2, p1, p2, k3], "none" or
+"folder", "depth_scale": 5155, "fr2", "recorded" or "folder"}, the lens as ``jaxvo run --lens``, the depth
+scale as ``jaxvo run --depth-scale``, "folder" the published one of each sequence's name; without them
+the reader's default, as ``jaxvo run`` reads the folder (a TUM fr1/fr2 or Bonn folder with its published
+lens and depth correction; ``"lens": "none", "depth_scale": "recorded"``: the files as they are); the
+first variant is the baseline). For each sequence (default: the Bonn crowd excerpt and TUM fr2/desk) and each seed,
 every variant runs ``Odometry`` over the whole sequence (frames decoded into memory first, one
 warm-up pass per variant to compile); the variants and OpenCV's RGB odometry over the same pairs
 are timed in turn, pass by pass, so that other processes on the machine weigh on all alike.
@@ -36,7 +38,6 @@ import jax  # noqa: E402
 from jaxvo.camera import Lens, preset_for_sequence, lens_for_sequence  # noqa: E402
 from jaxvo.config import Config, TrackConfig  # noqa: E402
 from jaxvo.data.calibration import resolve_depth_scale  # noqa: E402
-from jaxvo.frame import undistort  # noqa: E402
 from jaxvo.tracking.odometry import Odometry  # noqa: E402
 from jaxvo.tracking.segmentation import SegmentParams  # noqa: E402
 
@@ -83,8 +84,8 @@ def parse_variants(text: str) -> dict:
             bad = [f for f, v in segment._asdict().items() if isinstance(v, bool) or not isinstance(v, (int, float))]
             if bad:
                 raise ValueError(f"SegmentParams.{bad[0]} must be a number, got {getattr(segment, bad[0])!r}")
-            lens = spec.get("lens", "none")
-            lens = lens if lens == "folder" else Lens.parse(lens)
+            lens = spec.get("lens")
+            lens = lens if lens in (None, "folder") else Lens.parse(lens)
             scale = spec.get("depth_scale")
             if scale != "folder":
                 resolve_depth_scale(scale, 1.0)
@@ -127,17 +128,17 @@ def main(argv=None):
         cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
         results = {name: [] for name in variants}
         def reading(name):
-            """(lens, depth scale) the variant reads the sequence with, "folder" resolved."""
+            """(lens, depth scale) the variant reads the sequence with, "folder" resolved (None: the
+            reader's default, the folder's sensor's)."""
             lens, scale = variants[name][2:4]
             return (lens_for_sequence(seq.name) if lens == "folder" else lens,
                     preset_for_sequence(seq.name) if scale == "folder" else scale)
 
-        def frames_read(scale):
-            return frames if scale is None else common.load_frames(
-                common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale))
+        def frames_read(lens, scale):
+            return frames if lens is None and scale is None else common.load_frames(
+                common.open_sequence(path, max_frames=args.max_frames, depth_scale=scale, lens=lens))
         # each reading's frames as the reader gives them (undistorted after decoding, before any noise)
-        seen = {(lens, scale): [undistort(f, seq.camera, lens) for f in frames_read(scale)]
-                for lens, scale in {reading(n) for n in variants}}
+        seen = {(lens, scale): frames_read(lens, scale) for lens, scale in {reading(n) for n in variants}}
         for name, (config, policy, _, _, segment) in variants.items():   # warm-up: compile each variant
             run_pass(seq, seen[reading(name)][:3], config, policy, jax.random.key(seeds[0]), segment)
         for run, (seed, draw) in enumerate((s, d) for d in range(args.perturb) for s in seeds):

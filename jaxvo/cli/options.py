@@ -111,9 +111,11 @@ def depth_scale_option(ctx, param, value):
 
 
 DEPTH_SCALE_HELP = ("Depth PNG value / depth-scale = metres: 5000 for TUM, Bonn, ETH3D, ICL-NUIM; 1000 for "
-                    "millimetres (Open3D, RealSense, Redwood); or a sensor whose published depth correction to "
+                    "millimetres (Open3D, RealSense, Redwood); a sensor whose published depth correction to "
                     "apply to the layout's: fr1 (5000 x 1.035), fr2 (5000 x 1.031), bonn (5000 / 1.0593, the scale of "
-                    "Bonn's marker-to-camera calibration). [default: the layout's]")
+                    "Bonn's marker-to-camera calibration); or 'recorded': the layout's as it is. [default: the "
+                    "layout's, with the correction of the sensor the folder name identifies (freiburg1/2, "
+                    "rgbd_bonn_*) where the intrinsics are its preset]")
 
 
 def lens_option(ctx, param, value):

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from jaxvo.camera import PRESETS, depth_correction_for_sequence, preset_for_sequence
+from jaxvo.camera import DEPTH_CORRECTIONS, LENSES, PRESETS
 from jaxvo.cli.options import (CONVENTIONS, DEPTH_SCALE_HELP, FORCE, POSITIVE, SEED, compilation_cache, compile_note,
                                depth_scale_option, device, lens_option)
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
@@ -114,8 +114,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @click.option("--cx", type=float, default=None, help="Override the principal point cx (pixels, column).")
 @click.option("--cy", type=float, default=None, help="Override the principal point cy (pixels, row).")
 @click.option("--lens", default=None, callback=lens_option, metavar="LENS",
-              help="Undistort the images as they are read, for this lens: k1,k2,p1,p2,k3 (OpenCV's order) "
-                   "or a published one: fr1, fr2 (TUM), bonn. [default: none, the images as they are]")
+              help="Undistort the images as they are read, for this lens: k1,k2,p1,p2,k3 (OpenCV's order), "
+                   "a published one: fr1, fr2 (TUM), bonn, or 'none' (the images as they are). [default: the "
+                   "published lens of the sensor the folder name identifies (freiburg1/2, rgbd_bonn_*) where "
+                   "the intrinsics are its preset, else none]")
 @click.option("--max-dt", type=POSITIVE, default=0.02, show_default=True,
               help="Maximum colour/depth (and estimate/ground-truth) timestamp difference, seconds.")
 @click.option("--keyframe-gap", type=click.IntRange(min=1), default=None,
@@ -305,17 +307,29 @@ def _print_run_summary(run):
 
 
 def _depth_note(seq) -> str:
-    """``" (fr2 publishes a depth correction: --depth-scale fr2)"`` where the folder name's sensor has
-    one (:data:`jaxvo.camera.DEPTH_CORRECTIONS`) and the depth is read at the layout's scale, else ""."""
-    if depth_correction_for_sequence(seq.name) == 1.0 or seq.depth_scale != type(seq).DEPTH_SCALE:
+    """Where the depth scale came from, when a sensor's published correction is in play:
+    ``" (fr2's published correction; --depth-scale recorded: 5000)"`` where the reader applied it,
+    ``" (as recorded; fr2 publishes a correction: --depth-scale fr2)"`` where a recording that has one
+    is read at the layout's scale; else ""."""
+    layout = type(seq).DEPTH_SCALE
+    name = getattr(seq, "sensor", "default")
+    corrected = layout * DEPTH_CORRECTIONS.get(name, 1.0)
+    if corrected == layout:
         return ""
-    name = preset_for_sequence(seq.name)
-    return f" ({name} publishes a depth correction: --depth-scale {name})"
+    if seq.depth_scale == corrected:
+        return f" ({name}'s published correction; --depth-scale recorded: {layout:g})"
+    if seq.depth_scale == layout:
+        return f" (as recorded; {name} publishes a correction: --depth-scale {name})"
+    return ""
 
 
 def _lens_note(seq) -> str:
-    """``", undistorted (lens k1=..., ...)"`` where the reader undistorts the images, else ""."""
+    """``", undistorted (fr2's published lens k1=..., ...; --lens none: as they are)"`` where the reader
+    undistorts the images, else ""."""
     lens = getattr(seq, "lens", None)
     if lens is None or lens.is_pinhole:
         return ""
-    return f", undistorted (lens {', '.join(f'{k}={v:g}' for k, v in lens._asdict().items())})"
+    name = getattr(seq, "sensor", "default")
+    whose = f"{name}'s published lens " if LENSES.get(name) == lens else "lens "
+    return (f", undistorted ({whose}{', '.join(f'{k}={v:g}' for k, v in lens._asdict().items())}; "
+            f"--lens none: as they are)")

@@ -5,7 +5,13 @@ Intrinsics, unless given: the layout's calibration file (``calibration.txt``,
 (:func:`jaxvo.camera.camera_for_sequence`), scaled to the images' size when they are not
 640x480 (see :func:`sequence_camera`). The first frame read is checked for a plausible depth
 scale (:func:`check_depth_scale`). A depth scale may name a sensor instead of a number: the
-layout's scale with that sensor's published depth correction (:func:`resolve_depth_scale`).
+layout's scale with that sensor's published depth correction (:func:`resolve_depth_scale`), or
+``"recorded"``: the layout's scale as it is.
+
+Where the intrinsics are the folder name's preset (a TUM fr1/fr2/fr3 or Bonn recording), the
+readers also apply that sensor's published lens and depth correction unless told otherwise
+(:func:`published_sensor`): a recording is read with its dataset's whole calibration, as with
+its intrinsics.
 """
 from __future__ import annotations
 
@@ -14,13 +20,28 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from jaxvo.camera import DEPTH_CORRECTIONS, Camera, camera_for_sequence, camera_for_size
+from jaxvo.camera import DEPTH_CORRECTIONS, Camera, camera_for_sequence, camera_for_size, preset_for_sequence
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.textfiles import _data_lines
 from jaxvo.frame import PLAUSIBLE_DEPTH, suggest_depth_scale
 
 __all__ = ["read_calibration", "sequence_camera", "check_depth_scale", "parse_depth_scale", "resolve_depth_scale", "PLAUSIBLE_DEPTH",
-           "DEFAULT_SCALE_MIN_MEDIAN"]
+           "DEFAULT_SCALE_MIN_MEDIAN", "RECORDED", "published_sensor"]
+
+#: the ``depth_scale`` that reads the depth PNGs at the layout's scale, without a sensor's correction
+RECORDED = "recorded"
+
+#: the intrinsics' source (:func:`sequence_camera`) under which a folder name also names its sensor
+FOLDER_NAME = "folder name"
+
+
+def published_sensor(name: str, camera_source: str) -> str:
+    """The key of :data:`jaxvo.camera.LENSES` / :data:`jaxvo.camera.DEPTH_CORRECTIONS` whose published
+    calibration a reader applies by default: the folder ``name``'s preset where the intrinsics came from
+    it (``camera_source`` "folder name", the preset's own image size), else "default" (no lens, no
+    correction): intrinsics from a calibration file, from the caller or scaled to other images say
+    nothing of the lens or the depth."""
+    return preset_for_sequence(name) if camera_source == FOLDER_NAME else "default"
 
 
 def parse_depth_scale(text: str):
@@ -28,30 +49,32 @@ def parse_depth_scale(text: str):
     sensor of :data:`jaxvo.camera.DEPTH_CORRECTIONS` as given (:func:`resolve_depth_scale` makes it a
     number against the layout's scale). ValueError (one line) for anything else."""
     name = text.strip()
-    if name in DEPTH_CORRECTIONS:
+    if name in DEPTH_CORRECTIONS or name == RECORDED:
         return name
     try:
         number = float(name)
     except ValueError:
         number = None
     if number is None or not number > 0 or number == float("inf"):
-        raise ValueError(f"must be a number > 0 or a sensor with a published depth correction "
-                         f"({', '.join(sorted(DEPTH_CORRECTIONS))}), got {text!r}")
+        raise ValueError(f"must be a number > 0, a sensor with a published depth correction "
+                         f"({', '.join(sorted(DEPTH_CORRECTIONS))}) or {RECORDED!r}, got {text!r}")
     return number
 
 
 def resolve_depth_scale(value, layout_scale: float):
-    """A reader's ``depth_scale`` as a number: ``value`` itself (a number, or None for the layout's),
+    """A reader's ``depth_scale`` as a number: ``value`` itself (a number, or None: the reader decides),
     or, for a sensor name of :data:`jaxvo.camera.DEPTH_CORRECTIONS` (``"fr2"``), ``layout_scale``
-    times its published correction (5000 x 1.031 = 5155 for TUM fr2: PNG value / 5155 = metres).
-    ValueError (one line) for any other text."""
+    times its published correction (5000 x 1.031 = 5155 for TUM fr2: PNG value / 5155 = metres);
+    :data:`RECORDED` gives ``layout_scale``. ValueError (one line) for any other text."""
     if not isinstance(value, str):
         return value
     name = value.strip()
+    if name == RECORDED:
+        return float(layout_scale)
     if name not in DEPTH_CORRECTIONS:
         raise ValueError(f"open_sequence: depth_scale must be a number > 0, a sensor with a published depth "
-                         f"correction ({', '.join(sorted(DEPTH_CORRECTIONS))}), or None (the layout's scale), "
-                         f"got {value!r}")
+                         f"correction ({', '.join(sorted(DEPTH_CORRECTIONS))}), {RECORDED!r} (the layout's scale) "
+                         f"or None (the folder's sensor's, else the layout's), got {value!r}")
     return float(layout_scale) * DEPTH_CORRECTIONS[name]
 
 
@@ -114,7 +137,7 @@ def sequence_camera(seq_dir, image_size: Tuple[int, int], name: Optional[str] = 
     name = Path(seq_dir).resolve().name if name is None else name
     cam = camera_for_sequence(name)
     if (cam.width, cam.height) == (w, h):
-        return cam, "folder name"
+        return cam, FOLDER_NAME
     return camera_for_size(cam, w, h), f"a guess: the {cam.width}x{cam.height} preset for the folder name scaled to {w}x{h}"
 
 

@@ -85,9 +85,13 @@ def open_sequence(path, camera: Optional[Camera] = None, depth_scale: Union[floa
     """Open an RGB-D sequence folder with the reader its content calls for: ``rgb.txt`` + ``depth.txt``
     (TUM, Bonn, ETH3D, jaxvo synthetic) -> :class:`TumSequence`; ``associations.txt`` (ICL-NUIM) ->
     :class:`IclNuimSequence`; ``color/`` (or ``image/``) + ``depth/`` folders (Redwood) ->
-    :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's; a sensor name such as
-    ``"fr2"``: the layout's with its published depth correction) and ``kwargs``
-    (max_dt, start, max_frames, bonn, ...) go to the reader. Raises DatasetError for anything else,
+    :class:`RedwoodSequence`. ``camera``, ``depth_scale`` (None = the layout's, with the published
+    correction of the sensor the folder name identifies where the intrinsics are its preset: TUM
+    fr1, fr2, Bonn; ``"recorded"``: the layout's as it is; a sensor name such as ``"fr2"``: the
+    layout's with its published depth correction) and ``kwargs`` (max_dt, start, max_frames, bonn,
+    lens, ...) go to the reader. So a TUM fr1/fr2 or Bonn folder is read with its dataset's
+    published lens and depth correction, as with its intrinsics (``lens="none", depth_scale="recorded"``
+    reads the files as they are). Raises DatasetError for anything else,
     and ValueError naming the option and what it may hold for an option of a wrong type or value
     (e.g. ``max_frames="10"``).
 

@@ -23,8 +23,8 @@ from typing import Iterator, Optional, Tuple, Union
 
 import numpy as np
 
-from jaxvo.camera import NO_LENS, Camera, Lens
-from jaxvo.data.calibration import check_depth_scale, resolve_depth_scale, sequence_camera
+from jaxvo.camera import DEPTH_CORRECTIONS, LENSES, NO_LENS, Camera, Lens
+from jaxvo.data.calibration import check_depth_scale, published_sensor, resolve_depth_scale, sequence_camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
 from jaxvo.data.masks import match_masks, read_frame_mask
@@ -38,7 +38,7 @@ __all__ = ["TumSequence", "check_reader_options"]
 #: what the readers' options may hold (:func:`check_reader_options`)
 READER_RULES = {
     "max_dt": number(0, lo_open=True),
-    "depth_scale": number(0, lo_open=True, none_means="the layout's scale"),
+    "depth_scale": number(0, lo_open=True, none_means="the layout's, with the folder's sensor's correction"),
     "start": integer(0),
     "max_frames": integer(1, none_means="all frames"),
     "bonn": Rule("bool", none=True, none_means="decided from the folder name"),
@@ -70,10 +70,13 @@ class TumSequence:
       max_dt: maximum |t_rgb - t_depth| (s) for associating colour and depth (one-to-one,
         nearest first, as TUM's associate.py). Also the tolerance of the ground-truth
         coverage check.
-      depth_scale: depth PNG value / depth_scale = metres; None = the layout's (5000 for TUM,
-        Bonn, ETH3D and ICL-NUIM; 1000, millimetres, for Redwood); a sensor name of
-        :data:`jaxvo.camera.DEPTH_CORRECTIONS` (``"fr2"``): the layout's times that sensor's
-        published depth correction (:func:`jaxvo.data.calibration.resolve_depth_scale`).
+      depth_scale: depth PNG value / depth_scale = metres. None: the layout's (5000 for TUM,
+        Bonn, ETH3D and ICL-NUIM; 1000, millimetres, for Redwood) times the published depth
+        correction of the sensor the folder name identifies, where the intrinsics are that
+        sensor's preset (:func:`jaxvo.data.calibration.published_sensor`: TUM fr1 x 1.035, fr2
+        x 1.031, Bonn / 1.0593; none for fr3 or any other folder); ``"recorded"``: the layout's
+        as it is; a sensor name of :data:`jaxvo.camera.DEPTH_CORRECTIONS` (``"fr2"``): the
+        layout's times that sensor's correction (:func:`jaxvo.data.calibration.resolve_depth_scale`).
       start: index of the first associated frame to use.
       max_frames: use at most this many frames (None = all).
       bonn: treat ground truth as Bonn marker poses and convert it to camera poses;
@@ -84,13 +87,19 @@ class TumSequence:
         ``<timestamp>.png``; fills :attr:`jaxvo.frame.Frame.mask` (frames without one: None, all
         pixels usable).
       lens: the :class:`jaxvo.camera.Lens` the images were taken through (or what
-        :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers): each frame is undistorted
-        to ``camera`` as it is read (:func:`jaxvo.frame.undistort`; the published lenses of TUM
-        fr1, fr2 and Bonn: :data:`jaxvo.camera.LENSES`, :func:`jaxvo.camera.lens_for_sequence`).
-        None: the images are read as they are (a pinhole camera).
+        :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers, ``"none"``): each frame is
+        undistorted to ``camera`` as it is read (:func:`jaxvo.frame.undistort`; the published
+        lenses of TUM fr1, fr2 and Bonn: :data:`jaxvo.camera.LENSES`). None: the published lens
+        of the sensor the folder name identifies, as for ``depth_scale`` (TUM fr1, fr2, Bonn),
+        else none; ``"none"``: the images as they are (a pinhole camera).
+      sensor: the key of :data:`jaxvo.camera.LENSES` (``"fr2"``) whose published lens and depth
+        correction apply where ``lens`` / ``depth_scale`` are None; None: the folder name's
+        where the intrinsics are its preset (:func:`jaxvo.data.calibration.published_sensor`).
 
     Attributes:
-      camera, lens, timestamps ((N,) float64 rgb timestamps of the used frames, seconds),
+      camera, lens, sensor (the key of :data:`jaxvo.camera.LENSES` whose calibration applies by
+      default: :func:`jaxvo.data.calibration.published_sensor`), timestamps ((N,) float64 rgb
+      timestamps of the used frames, seconds),
       depth_timestamps ((N,)), rgb_paths / depth_paths (lists of Path), name, path, is_bonn.
     """
 
@@ -100,7 +109,8 @@ class TumSequence:
 
     def __init__(self, path, camera: Optional[Camera] = None, max_dt: float = 0.02,
                  depth_scale: Union[float, str, None] = None, start: int = 0, max_frames: Optional[int] = None,
-                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens=None):
+                 bonn: Optional[bool] = None, gt_slack: float = 0.1, mask_dir=None, lens=None,
+                 sensor: Optional[str] = None):
         depth_scale = resolve_depth_scale(depth_scale, self.DEPTH_SCALE)
         check_reader_options(path, max_dt=max_dt, depth_scale=depth_scale, start=start, max_frames=max_frames,
                              bonn=bonn, gt_slack=gt_slack)
@@ -117,7 +127,6 @@ class TumSequence:
             raise ValueError(f"camera must be a jaxvo.Camera, got {camera!r}"
                              + (f" (use jaxvo.camera.PRESETS[{camera!r}])" if isinstance(camera, str) else ""))
         self.max_dt = float(max_dt)
-        self.depth_scale = float(self.DEPTH_SCALE if depth_scale is None else depth_scale)
         self._scale_given = depth_scale is not None
         self.is_bonn = is_bonn_sequence(self.path) if bonn is None else bool(bonn)
         self.gt_slack = float(gt_slack)
@@ -148,7 +157,14 @@ class TumSequence:
             self.camera.validate()
         except ValueError as e:
             raise DatasetError(f"{self.path}: {e} (camera from {self.camera_source})") from None
-        self.lens = NO_LENS if lens is None else Lens.parse(lens)
+        # a folder named for a known sensor, read with that sensor's intrinsics, is read with its
+        # lens and depth correction too (docs/decisions/sensor-calibration.md)
+        if sensor is not None and sensor not in LENSES:
+            raise ValueError(f"open_sequence: sensor must be one of {', '.join(sorted(LENSES))} or None, got {sensor!r}")
+        self.sensor = published_sensor(self.name, self.camera_source) if sensor is None else sensor
+        self.depth_scale = float(self.DEPTH_SCALE * DEPTH_CORRECTIONS[self.sensor] if depth_scale is None
+                                 else depth_scale)
+        self.lens = LENSES[self.sensor] if lens is None else Lens.parse(lens)
         self._gt = None
         self._gt_loaded = False
         self._depth_checked = False

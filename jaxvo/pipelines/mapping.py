@@ -207,7 +207,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
     Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
     """
     from jaxvo.data import DatasetError
-    from jaxvo.frame import make_frame
+    from jaxvo.frame import make_frame, undistort_images
 
     t0 = time.perf_counter()
     if every < 1:
@@ -249,6 +249,8 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
             if (dep.shape[1], dep.shape[0]) != (W, H):
                 raise DatasetError(f"{seq.rgb_paths[i]}: image size {dep.shape[1]}x{dep.shape[0]} does not "
                                    f"match the camera's {W}x{H}")
+            # the images the trajectory was estimated on: undistorted for the reader's lens
+            bgr, dep = undistort_images(bgr, dep, cam, seq.lens)
             rgb = np.ascontiguousarray(bgr[..., ::-1])
             try:
                 fr = make_frame(bgr, dep, seq.depth_scale, color_order="bgr", source=str(seq.depth_paths[i]))

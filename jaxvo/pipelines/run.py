@@ -147,12 +147,15 @@ def load_sequence(seq_dir, preset: Optional[str] = None, fx=None, fy=None, cx=No
     intrinsics the CLI would use: the ``preset`` (fr1, fr2, fr3, bonn, default) if given, else the
     folder's own (calibration file, info.json, folder name; sized to the images); ``fx, fy, cx, cy``
     (pixels) override single values. ``lens`` (a :class:`jaxvo.camera.Lens`, or what
-    :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers): the images are undistorted as they
-    are read (None: read as they are). ``kwargs`` (depth_scale, max_dt, start, max_frames, ...) go
-    to the reader. ``seq.camera_source`` says where the intrinsics came from.
+    :meth:`jaxvo.camera.Lens.parse` reads: ``"fr2"``, 5 numbers, ``"none"``): the images are
+    undistorted as they are read (None: with the published lens of the preset, or of the folder
+    name's sensor where the intrinsics are its preset; else as they are). ``kwargs`` (depth_scale,
+    max_dt, start, max_frames, ...) go to the reader, which reads the depth likewise with the
+    preset's published correction unless ``depth_scale`` says otherwise. ``seq.camera_source``
+    says where the intrinsics came from.
     """
     seq = open_sequence(seq_dir, camera=PRESETS[preset] if preset is not None else None,
-                        lens=None if lens is None else Lens.parse(lens), **kwargs)
+                        lens=None if lens is None else Lens.parse(lens), sensor=preset, **kwargs)
     if preset is not None:
         seq.camera_source = f"preset {preset}"
     over = {k: float(v) for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)) if v is not None}

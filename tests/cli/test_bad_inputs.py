@@ -205,7 +205,7 @@ CLI_CASES = [
     ("config-missing", lambda c: ["run", c.seq, "--config", c.root / "none.json"], "config file not found"),
     ("run-lens-two-numbers", lambda c: ["run", c.seq, "--lens", "0.1,0.2"], "--lens': lens must be 5 finite numbers"),
     ("run-depth-scale-unknown-sensor", lambda c: ["run", c.seq, "--depth-scale", "fr9"],
-     "--depth-scale': must be a number > 0 or a sensor"),
+     "--depth-scale': must be a number > 0, a sensor"),
     ("run-depth-scale-negative", lambda c: ["run", c.seq, "--depth-scale", "-5"],
      "--depth-scale': must be a number > 0"),
     ("config-is-folder", lambda c: ["run", c.seq, "--config", c.seq], "is a folder"),

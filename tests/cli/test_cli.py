@@ -276,19 +276,23 @@ def _ate_and_scale(stdout):
     return float(m.group(1)), float(m.group(2))
 
 
-def test_fr2_desk_depth_read_as_recorded_is_too_far_and_its_correction_fixes_it(jaxvo_run):
-    """As recorded (5000) the default's fr2/desk trajectory is about 4.5 % too long (similarity
-    scale ~0.955; the run line names the published correction); with --depth-scale fr2 (TUM's
-    1.031) its scale is within 2.5 % of 1 and its ATE lower (docs/decisions/depth-scale.md)."""
-    as_read = jaxvo_run(FR2_DESK, "--seed", 0)[0]     # fr2_runs' default run (the session runs it once)
-    assert "depth scale 5000 (fr2 publishes a depth correction: --depth-scale fr2)" in as_read.output
-    ate, scale = _ate_and_scale(as_read.stdout)
-    assert 0.93 < scale < 0.975, scale
-    r, _ = jaxvo_run(FR2_DESK, "--depth-scale", "fr2", "--seed", 0)
-    assert r.exit_code == 0, r.output
-    assert "depth scale 5155," in r.output and "publishes" not in r.output
-    ate_fixed, scale_fixed = _ate_and_scale(r.stdout)
-    assert 0.975 < scale_fixed < 1.01 and ate_fixed < 0.8 * ate, (ate_fixed, scale_fixed, ate)
+def test_fr2_desk_read_with_its_published_calibration_and_as_recorded(jaxvo_run):
+    """By default fr2/desk is read with fr2's published lens and depth correction (the run line
+    says so and how to read it as recorded): the default's trajectory is within 2.5 % of the
+    ground truth's scale. As recorded (--depth-scale recorded --lens none) it is about 4.5 % too long
+    (similarity scale ~0.955; the run line names the correction) and its ATE higher
+    (docs/decisions/depth-scale.md, docs/decisions/sensor-calibration.md)."""
+    r = jaxvo_run(FR2_DESK, "--seed", 0)[0]     # fr2_runs' default run (the session runs it once)
+    assert "depth scale 5155 (fr2's published correction; --depth-scale recorded: 5000)" in r.output
+    assert "undistorted (fr2's published lens k1=0.231222" in r.output
+    ate, scale = _ate_and_scale(r.stdout)
+    assert 0.975 < scale < 1.01, scale
+    as_read, _ = jaxvo_run(FR2_DESK, "--depth-scale", "recorded", "--lens", "none", "--seed", 0)
+    assert as_read.exit_code == 0, as_read.output
+    assert "depth scale 5000 (as recorded; fr2 publishes a correction: --depth-scale fr2)" in as_read.output
+    assert "undistorted" not in as_read.output
+    ate_raw, scale_raw = _ate_and_scale(as_read.stdout)
+    assert 0.93 < scale_raw < 0.975 and ate < 0.8 * ate_raw, (ate, scale_raw, ate_raw)
 
 
 def test_fr2_desk_eval_seconds_and_plot(fr2_runs):
@@ -331,17 +335,16 @@ def test_bonn_crowd_160_frames_end_to_end(tmp_path, jaxvo_run):
     if not BONN_CROWD.is_dir():
         pytest.skip(f"Bonn data not found: {BONN_CROWD} (set JAXVO_DATA to the data root)")
     default = _run_and_eval(tmp_path, jaxvo_run, BONN_CROWD, "default", "--seed", 0)   # also pinned by test_bitwise.py
-    # read as recorded; the run line names the correction of the dataset's own calibration
-    assert "depth scale 5000 (bonn publishes a depth correction: --depth-scale bonn)" in \
-        jaxvo_run(BONN_CROWD, "--seed", 0)[0].output
+    # read with the dataset's published calibration (Bonn's lens and depth correction); the run
+    # line says so
+    out = jaxvo_run(BONN_CROWD, "--seed", 0)[0].output
+    assert "depth scale 4720.1 (bonn's published correction; --depth-scale recorded: 5000)" in out
+    assert "undistorted (bonn's published lens" in out
     f2f = _run_and_eval(tmp_path, jaxvo_run, BONN_CROWD, "f2f", "--seed", 0, "--frame-to-frame")
     print("default", default, "frame to frame", f2f)
-    # measured 2026-11-26 (2-core Xeon): this run 0.027 m/s, 0.67 deg/s, ATE 0.026 m against frame
-    # to frame 0.52 m/s, 9.3 deg/s, 0.45 m; over seeds 0-11 (experiments/keyframes.py,
-    # experiments/results/bonn_default.md) the defaults give 0.023-0.037 m/s, 0.53-1.30 deg/s,
-    # ATE 0.021-0.033 m, frame to frame 0.48-0.52 m/s, 8.4-9.2 deg/s, ATE 0.42-0.45 m (seeds 0-2,
-    # keyframes.md). Another CPU rounds differently and a crowd run amplifies rounding, so the
-    # bounds leave the seeds' spread as margin.
+    # the seeds' spread of the defaults and of frame to frame on this excerpt: docs/results.md
+    # (experiments/keyframes.py); another CPU rounds differently and a crowd run amplifies
+    # rounding, so the bounds leave that spread as margin
     assert default[0] < 0.25 * f2f[0] and default[2] < 0.15 * f2f[2], (default, f2f)
     # issue 10's targets for the defaults on this excerpt: RPE 1 s <= 0.05 m/s, ATE <= 0.04 m
     assert default[0] < 0.05 and default[2] < 0.04, default

@@ -10,7 +10,7 @@ import pytest
 
 from jaxvo import geometry as G
 from jaxvo.frame import undistort
-from jaxvo.camera import (BONN, DEFAULT, DEPTH_CORRECTIONS, LENSES, NO_LENS, TUM_FR2, Camera, camera_for_size,
+from jaxvo.camera import (BONN, DEFAULT, DEPTH_CORRECTIONS, LENSES, NO_LENS, PRESETS, TUM_FR2, Camera, camera_for_size,
                           depth_correction_for_sequence, lens_for_sequence)
 from jaxvo.data import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                         data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
@@ -26,8 +26,10 @@ def _pose_line(t, T):
 
 
 def make_seq(root: Path, name="seq", n=5, rgb_dt=1 / 30, depth_offset=0.004, gt=True, gt_span=None,
-             write_images=True):
-    """Tiny TUM folder: n frames of W x H, rgb at rgb_dt, depth offset by depth_offset s."""
+             write_images=True, size=None):
+    """Tiny TUM folder: n frames of W x H (or ``size`` (width, height)), rgb at rgb_dt, depth offset
+    by depth_offset s."""
+    w, h = (W, H) if size is None else size
     d = root / name
     (d / "rgb").mkdir(parents=True)
     (d / "depth").mkdir()
@@ -38,10 +40,10 @@ def make_seq(root: Path, name="seq", n=5, rgb_dt=1 / 30, depth_offset=0.004, gt=
         rgb_lines.append(f"{tr:.6f} rgb/{tr:.6f}.png")
         depth_lines.append(f"{td:.6f} depth/{td:.6f}.png")
         if write_images:
-            img = np.full((H, W, 3), 10 * i, np.uint8)
+            img = np.full((h, w, 3), 10 * i, np.uint8)
             img[..., 2] = 200  # red channel in BGR order
             cv2.imwrite(str(d / f"rgb/{tr:.6f}.png"), img)
-            cv2.imwrite(str(d / f"depth/{td:.6f}.png"), np.full((H, W), 5000 + 100 * i, np.uint16))
+            cv2.imwrite(str(d / f"depth/{td:.6f}.png"), np.full((h, w), 5000 + 100 * i, np.uint16))
     (d / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (d / "depth.txt").write_text("\n".join(depth_lines) + "\n")
     if gt:
@@ -98,10 +100,11 @@ def test_camera_from_folder_name(tmp_path):
 
 
 def test_lens_undistorts_frames_as_they_are_read(tmp_path):
-    """No lens by default (the images as they are); lens= (a Lens, a preset name or 5 numbers)
-    undistorts each frame as it is read, exactly as jaxvo.frame.undistort does."""
+    """No lens where the intrinsics are not the folder's sensor's preset (here a guess scaled to
+    8x6 images); lens= (a Lens, a preset name or 5 numbers) undistorts each frame as it is read,
+    exactly as jaxvo.frame.undistort does."""
     d = make_seq(tmp_path, name="rgbd_dataset_freiburg2_fake", n=2)
-    assert TumSequence(d).lens == NO_LENS
+    assert TumSequence(d).lens == NO_LENS and TumSequence(d).sensor == "default"
     s = TumSequence(d, camera=SMALL, lens="fr2")
     assert s.lens == LENSES["fr2"]
     raw = TumSequence(d, camera=SMALL).frame(0)
@@ -110,17 +113,48 @@ def test_lens_undistorts_frames_as_they_are_read(tmp_path):
         TumSequence(d, camera=SMALL, lens="0,1")
 
 
-def test_real_sequence_undistorted_with_its_published_lens():
-    """fr2/desk with lens="fr2": every frame is the undistorted raw frame; corners read beyond the
-    image get no depth."""
+def test_real_sequence_read_with_its_published_lens_and_depth_correction():
+    """fr2/desk by default: fr2's intrinsics from the folder name, and with them fr2's published lens
+    and depth correction; every frame is the frame read as recorded at 1/5155 m, undistorted (corners
+    read beyond the image get no depth). lens="none", depth_scale="recorded": the files as they are."""
     fr2 = data_root() / "tum" / "rgbd_dataset_freiburg2_desk"
     if not fr2.is_dir():
         pytest.skip(f"real data missing: {fr2} (set JAXVO_DATA to the data root)")
-    s, plain = TumSequence(fr2, max_frames=1, lens="fr2"), TumSequence(fr2, max_frames=1)
-    assert plain.lens == NO_LENS and s.lens == lens_for_sequence(s.name) == LENSES["fr2"]
-    f, g = s.frame(0), plain.frame(0)
-    np.testing.assert_array_equal(f.intensity, undistort(g, s.camera, LENSES["fr2"]).intensity)
-    assert not np.array_equal(f.depth, g.depth) and f.depth[0, 0] == 0
+    s = TumSequence(fr2, max_frames=1)
+    assert (s.sensor, s.camera_source, s.lens, s.depth_scale) == ("fr2", "folder name", LENSES["fr2"], 5000 * 1.031)
+    unlensed = TumSequence(fr2, max_frames=1, lens="none", depth_scale="fr2")
+    recorded = TumSequence(fr2, max_frames=1, lens="none", depth_scale="recorded")
+    assert (recorded.lens, recorded.depth_scale) == (NO_LENS, 5000.0)
+    f, g = s.frame(0), undistort(unlensed.frame(0), s.camera, LENSES["fr2"])
+    np.testing.assert_array_equal(f.intensity, g.intensity)
+    np.testing.assert_array_equal(f.depth, g.depth)
+    raw = cv2.imread(str(s.depth_paths[0]), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(recorded.frame(0).depth, (raw / 5000.0).astype(np.float32))
+    assert not np.array_equal(f.depth, recorded.frame(0).depth) and f.depth[0, 0] == 0
+
+
+def test_published_calibration_follows_the_intrinsics(tmp_path):
+    """A folder named for a sensor, at that sensor's image size, is read with its preset's
+    intrinsics, lens and depth correction; intrinsics from the caller or from a calibration file say
+    nothing of the lens or the depth (none applied), unless ``sensor`` names one; a folder named for
+    no sensor gets none."""
+    import json
+    bonn = make_seq(tmp_path, name="rgbd_bonn_fake", n=1, size=(640, 480))
+    s = TumSequence(bonn)
+    assert (s.sensor, s.lens, s.depth_scale) == ("bonn", LENSES["bonn"], pytest.approx(5000 / 1.0593))
+    given = TumSequence(bonn, camera=PRESETS["bonn"])
+    assert (given.sensor, given.lens, given.depth_scale) == ("default", NO_LENS, 5000.0)
+    named = TumSequence(bonn, camera=PRESETS["fr2"], sensor="fr2")
+    assert (named.lens, named.depth_scale) == (LENSES["fr2"], 5000 * 1.031)
+    assert TumSequence(bonn, depth_scale=4000, lens="none").depth_scale == 4000.0
+    with pytest.raises(ValueError, match="sensor must be one of"):
+        TumSequence(bonn, sensor="kinect")
+    other = make_seq(tmp_path, name="my_room", n=1, size=(640, 480))
+    assert (TumSequence(other).sensor, TumSequence(other).lens, TumSequence(other).depth_scale) == \
+        ("default", NO_LENS, 5000.0)
+    (bonn / "info.json").write_text(json.dumps({"camera": {"fx": 500, "fy": 500, "cx": 320, "cy": 240,
+                                                            "width": 640, "height": 480}}))
+    assert (TumSequence(bonn).sensor, TumSequence(bonn).depth_scale) == ("default", 5000.0)
 
 
 def test_bonn_depth_correction_is_the_scale_of_its_published_marker_calibration(tmp_path):
@@ -536,7 +570,8 @@ def test_real_bonn_relative_motion_matches_images():
     ({"max_frames": 2.0}, r"max_frames must be an integer >= 1, or None \(all frames\), got 2\.0"),
     ({"max_frames": 0}, r"max_frames must be an integer >= 1"),
     ({"depth_scale": "5000"}, r"^open_sequence: depth_scale must be a number > 0, a sensor with a published depth "
-                              r"correction \(bonn, default, fr1, fr2, fr3\), or None \(the layout's scale\), got '5000'$"),
+                              r"correction \(bonn, default, fr1, fr2, fr3\), 'recorded' \(the layout's scale\) or None "
+                              r"\(the folder's sensor's, else the layout's\), got '5000'$"),
     ({"depth_scale": -1.0}, r"depth_scale must be a number > 0"),
     ({"start": "2"}, r"^open_sequence: start must be an integer >= 0, got '2'$"),
     ({"start": 1.5}, r"start must be an integer >= 0, got 1\.5"),
@@ -606,6 +641,7 @@ def test_parse_depth_scale_reads_a_number_or_a_sensor():
     sensor with a published correction as its name, anything else one ValueError naming it."""
     from jaxvo.data.calibration import parse_depth_scale
     assert parse_depth_scale("5155") == 5155.0 and parse_depth_scale(" fr2 ") == "fr2"
+    assert parse_depth_scale("recorded") == "recorded"
     for bad in ("fr9", "-5", "0", "inf", "nan"):
         with pytest.raises(ValueError, match=f"got '{bad}'"):
             parse_depth_scale(bad)
