@@ -274,6 +274,10 @@ class TrackConfig(NamedTuple):
     #: keyframes before its pose is held; two trusted estimates that agree on its pose are kept
     #: even where its guess makes them jumps. docs/decisions/window.md.
     recover: Annotated[bool, flag()] = True
+    #: A frame whose estimate still failed (after ``retry`` and ``recover``) moves the reference
+    #: at once to the latest successful frame at least ``lag`` back, as a switch would after it,
+    #: and is estimated once more against that. docs/decisions/refresh.md.
+    refresh: Annotated[bool, flag()] = True
     #: With window > 1 and RANSAC: the outlier fraction (``Config.w``, in [0, 1)) that the
     #: estimates of a new keyframe against the window's older keyframes assume, which sets how
     #: many hypotheses they draw; None: as the other estimates (``outliers``, else ``Config.w``).
@@ -300,7 +304,7 @@ class TrackConfig(NamedTuple):
     def frame_to_frame(cls, **changes) -> "TrackConfig":
         """The paper's chaining: every frame against the one before it, no segmentation."""
         return cls(**{"max_gap": 1, "lag": 0, "segment": False, "max_step": 0.1, "max_step_deg": 10.0, "coast": 0,
-                      "restart": 4, "catch_up": False, "retry": False, "window": 1,
+                      "restart": 4, "catch_up": False, "retry": False, "window": 1, "refresh": False,
                       **changes})
 
     @classmethod
@@ -309,7 +313,7 @@ class TrackConfig(NamedTuple):
         no segmentation unless ``segment=True`` is passed."""
         return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
                       "max_step": 0.1, "max_step_deg": 10.0, "restart": 4 * max_gap, "catch_up": False,
-                      "retry": False, "window": 1, **changes})
+                      "retry": False, "window": 1, "refresh": False, **changes})
 
     def to_json(self) -> str:
         """Every field as one line of JSON; :meth:`from_json` reads it back exactly."""

@@ -271,6 +271,13 @@ class Odometry:
         used = ref
         if not judged.valid and policy.recover and policy.window > 1:
             used, est, judged = self._recover(pair, est, judged, extra)
+        if not judged.valid and policy.refresh:
+            refreshed = self._refresh(pair, extra)
+            if refreshed is not None:
+                est, judged, weights = refreshed
+                ref = used = self._ref
+                T_world_ref = self._chain_pose(ref)
+                ref_mask = None
         T, ratio, ratio_static, valid, dynamic = judged.T, judged.ratio, judged.ratio_static, judged.valid, judged.dynamic
         pose = self._held(j) if not valid and policy.hold_invalid else self._chain_pose(used) @ geometry.inverse(T)
         poses.append(pose)
@@ -357,6 +364,31 @@ class Odometry:
                 jumps.append((k, again, judged_again))
         agreed = self._agreeing(jumps, guess, extra)
         return agreed if agreed is not None else (ref, est, judged)
+
+    def _refresh(self, pair: "PairInputs", extra):
+        """(estimate, judgement, the new reference's static weights) of a frame whose estimates
+        all failed (``TrackConfig.refresh``), or None where there is no newer reference to move
+        to: the reference moves now to the latest successful frame at least ``lag`` back (the
+        frame a switch after this one would choose), with its map made as a switch makes it, and
+        the frame is estimated against it from its guess, the previous frame's pose. The estimate
+        may fail too; the reference has moved either way.
+
+        A frame fails against its reference mostly where people have moved since it: the reference
+        chosen after the failure is closer in time, so fewer of its pixels have moved and its
+        map is fresher, and the frame need not wait for the next switch to use it."""
+        j, ref, policy = len(self.poses), self._ref, self.policy
+        good = [i for i in range(ref + 1, min(j - policy.lag + 1, j)) if self.valid[i - 1]]
+        if not good:
+            return None
+        guess = self._chain_pose(ref) @ pair.T_ref_prev        # T_world_guess: the previous frame's pose
+        self._set_reference(good[-1], j - 1)
+        self._calm = False
+        new = self._ref
+        trust = self.static_map.trust(tuple(pair.cur.depth.shape))
+        T_new_prev = geometry.inverse(self._chain_pose(new)) @ guess
+        key = jax.random.fold_in(pair.key, 4)   # apart from the frame's other keys
+        est = self._estimate("refresh", new, j, key, geometry.inverse(T_new_prev), trust)
+        return est, self._judge(est, T_new_prev, trust, extra), trust
 
     def _agreeing(self, jumps, guess: np.ndarray, extra):
         """The first of ``jumps`` (reference, estimate, judgement; trusted estimates of the current

@@ -294,3 +294,34 @@ def test_estimates_that_agree_outweigh_a_wrong_guess(monkeypatch):
     assert all(odo.valid[100:110])
     held = _run(policy._replace(recover=False))
     assert not held.valid[100]
+
+
+def test_a_failed_frame_moves_the_reference_at_once_and_is_estimated_against_it(monkeypatch):
+    """From frame 100 on an estimate fails against a reference more than 3 frames back (people
+    have moved since it, as in a crowd), else it is right (3 mm / 0.1 deg noise). With ``refresh``
+    a frame that fails moves the reference to the latest successful frame ``lag`` (3) back and is
+    estimated against it: no frame is held and the track stays on the truth. Without it the
+    frames 4 and 5 after a reference are held until the reference moves on its own."""
+    truth = _truth()
+    calls = []
+
+    def fake(ref, cur, camera, config, key, init=None, weights=None):
+        r, c = _index(ref), _index(cur)
+        calls.append((r, c))
+        rng = np.random.default_rng(1000 * r + c)
+        noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
+        T = geometry.inverse(truth[c]) @ truth[r] @ geometry.exp(noise)
+        z = np.zeros((CAM.height, CAM.width), bool)
+        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, c < 100 or c - r <= 3, np.eye(6), 1.0)
+
+    monkeypatch.setattr(O, "estimate_motion", fake)
+    odo = _run(TrackConfig.keyframes(6, refresh=True))
+    assert all(odo.valid)
+    refs = np.asarray(odo.references)
+    assert np.all(np.arange(1, N)[99:] - refs[99:] <= 3)
+    assert any(c >= 100 and c - r > 3 for r, c in calls)   # estimates did fail and were made again
+    E = geometry.inverse(truth[-1]) @ odo.poses[-1]
+    assert np.linalg.norm(E[:3, 3]) < 0.05
+    held = _run(TrackConfig.keyframes(6))
+    assert not all(held.valid[99:])
+    assert not TrackConfig.frame_to_frame().refresh and not TrackConfig.keyframes().refresh
