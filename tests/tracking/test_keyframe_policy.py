@@ -52,7 +52,9 @@ def noisy_estimator(monkeypatch):
     return _fake_estimator(monkeypatch, _truth())
 
 
-def _fake_estimator(monkeypatch, truth):
+def _fake_estimator(monkeypatch, truth, passes=lambda r, c: c not in FAIL):
+    """The noisy exact estimator for the path ``truth``; an estimate of frame c against frame r
+    reports failure where ``passes(r, c)`` is False. Returns (truth, the (r, c) pairs estimated)."""
     calls = []
 
     def fake(ref, cur, camera, config, key, init=None, weights=None):
@@ -62,8 +64,7 @@ def _fake_estimator(monkeypatch, truth):
         noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
         T = geometry.inverse(truth[c]) @ truth[r] @ geometry.exp(noise)
         z = np.zeros((CAM.height, CAM.width), bool)
-        ok = c not in FAIL
-        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, ok, np.eye(6), 1.0)
+        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, passes(r, c), np.eye(6), 1.0)
 
     monkeypatch.setattr(O, "estimate_motion", fake)
     return truth, calls
@@ -302,19 +303,7 @@ def test_a_failed_frame_moves_the_reference_at_once_and_is_estimated_against_it(
     a frame that fails moves the reference to the latest successful frame ``lag`` (3) back and is
     estimated against it: no frame is held and the track stays on the truth. Without it the
     frames 4 and 5 after a reference are held until the reference moves on its own."""
-    truth = _truth()
-    calls = []
-
-    def fake(ref, cur, camera, config, key, init=None, weights=None):
-        r, c = _index(ref), _index(cur)
-        calls.append((r, c))
-        rng = np.random.default_rng(1000 * r + c)
-        noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
-        T = geometry.inverse(truth[c]) @ truth[r] @ geometry.exp(noise)
-        z = np.zeros((CAM.height, CAM.width), bool)
-        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, c < 100 or c - r <= 3, np.eye(6), 1.0)
-
-    monkeypatch.setattr(O, "estimate_motion", fake)
+    truth, calls = _fake_estimator(monkeypatch, _truth(), passes=lambda r, c: c < 100 or c - r <= 3)
     odo = _run(TrackConfig.keyframes(6, refresh=True))
     assert all(odo.valid)
     refs = np.asarray(odo.references)
