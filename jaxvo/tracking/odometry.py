@@ -376,12 +376,12 @@ class Odometry:
         A frame fails against its reference mostly where people have moved since it: the reference
         chosen after the failure is closer in time, so fewer of its pixels have moved and its
         map is fresher, and the frame need not wait for the next switch to use it."""
-        j, ref, policy = len(self.poses), self._ref, self.policy
-        good = [i for i in range(ref + 1, min(j - policy.lag + 1, j)) if self.valid[i - 1]]
-        if not good:
+        j, ref = len(self.poses), self._ref
+        good = self._latest_good(j)
+        if good is None:
             return None
         guess = self._chain_pose(ref) @ pair.T_ref_prev        # T_world_guess: the previous frame's pose
-        self._set_reference(good[-1], j - 1)
+        self._set_reference(good, j - 1)
         self._calm = False
         new = self._ref
         trust = self.static_map.trust(tuple(pair.cur.depth.shape))
@@ -565,11 +565,9 @@ class Odometry:
         if calm:      # nothing moves: frame to frame, the shortest baseline
             self._set_reference(j, j)
         elif j - ref >= policy.max_gap or (self.valid[-1] and (ratio_static < policy.switch_ratio or far)):
-            # the latest frame at least `lag` back whose own estimate succeeded: a failed
-            # (held) frame has no trustworthy pose and must not become a reference
-            good = [i for i in range(ref + 1, j - policy.lag + 1) if self.valid[i - 1]]
-            if good:
-                self._set_reference(good[-1], j)
+            good = self._latest_good(j)
+            if good is not None:
+                self._set_reference(good, j)
             elif j - ref >= policy.restart:
                 self._set_reference(j - policy.lag, j)  # lost for long: restart from the held poses
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
@@ -584,6 +582,15 @@ class Odometry:
         for d in (self._anchor, self._rel):   # estimates against the last references only
             for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap and i not in self._window]:
                 del d[old]
+
+    def _latest_good(self, j: int) -> Optional[int]:
+        """The frame a move of the reference at frame j goes to: the latest frame after the
+        reference and at least ``lag`` before j whose own estimate succeeded (a failed, held frame
+        has no trustworthy pose and must not become a reference), among the frames posed so far;
+        None if there is none."""
+        posed = len(self.valid) + 1          # the frames before this one are posed (frame i >= 1: valid[i - 1])
+        good = [i for i in range(self._ref + 1, min(j - self.policy.lag + 1, posed)) if self.valid[i - 1]]
+        return good[-1] if good else None
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
