@@ -137,6 +137,15 @@ def test_read_errors(tmp_path):
     p.write_text("# nothing\n")
     with pytest.raises(DatasetError, match=r"bad\.txt: no poses"):
         read_tum_trajectory(p)
+    # several bad lines: the first in the file is named, whichever its fault (the values are
+    # checked over many lines at once, the fields line by line)
+    for text, first in [("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n2 0 0\n", r":2: quaternion has zero norm"),
+                        ("0 0 0 0 0 0 0 1\n1 inf 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n", r":2: non-finite"),
+                        ("0 0 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n2 nan 0 0 0 0 0 1\n", r":2: timestamp 0 repeats line 1"),
+                        ("0 0 0 0 0 0 0 1\n1 0 x 0 0 0 0 1\n2 nan 0 0 0 0 0 1\n", r":2: malformed line .*non-numeric")]:
+        p.write_text(text)
+        with pytest.raises(DatasetError, match=r"bad\.txt" + first):
+            read_tum_trajectory(p)
 
 
 def test_read_sorts_and_refuses_duplicate_stamps(tmp_path):
