@@ -592,6 +592,22 @@ def test_startup_reads_xla_compile_log_by_stage():
     assert startup.parse_codegen_log("no timing lines", kernels) is None
 
 
+def test_startup_times_the_clis_first_pose_at_frame_1s_line(tmp_path):
+    """``jaxvo run``'s first pose, timed from the process's start, is its trajectory's line for
+    frame 1, under the ``.partial`` name while it runs: not the header, not frame 0's start pose."""
+    startup = _script("startup")
+    out = tmp_path / "traj.txt"
+    watched = (tmp_path / "traj.txt.partial", out)
+    watched[0].write_text("# jaxvo\n# method: ransac\n")
+    assert not startup._has_pose(watched)
+    watched[0].write_text("# jaxvo\n0.0 0 0 0 0 0 0 1\n")
+    assert not startup._has_pose(watched)
+    watched[0].write_text("# jaxvo\n0.0 0 0 0 0 0 0 1\n# held 0.1\n0.1 0 0 0 0 0 0 1\n")
+    assert startup._has_pose(watched)
+    watched[0].rename(out)
+    assert startup._has_pose(watched)
+
+
 def test_rerun_reads_the_commands_of_the_bash_blocks():
     """rerun.py: each line of a bash block is one command, a trailing comment dropped, ``python``
     this interpreter and ``jaxvo`` its ``-m jaxvo``; text outside the blocks is not run; another
