@@ -91,10 +91,10 @@ def read_pose_file(path, what: str = "trajectory", duplicates: str = "first") ->
     rows, lines, texts = [], [], []
     line_of = {}
 
-    def check_values(upto: int) -> None:
-        # the values' checks, over the rows before ``upto`` at once (a ground truth holds ~10^4
+    def check_values() -> None:
+        # the values' checks, over the rows read so far at once (a ground truth holds ~10^4
         # lines), raising for the first bad one in file order
-        a = np.asarray(rows[:upto], dtype=np.float64).reshape(-1, 8)
+        a = np.asarray(rows, dtype=np.float64).reshape(-1, 8)
         bad_value = ~np.isfinite(a).all(axis=1)
         with np.errstate(invalid="ignore", over="ignore"):
             zero_q = ~bad_value & (np.linalg.norm(a[:, 4:8], axis=1) < 1e-6)
@@ -108,25 +108,25 @@ def read_pose_file(path, what: str = "trajectory", duplicates: str = "first") ->
     for n, s in _data_lines(path):
         parts = s.replace(",", " ").split()
         if len(parts) != 8:
-            check_values(len(rows))
+            check_values()
             raise DatasetError(f"{path}:{n}: malformed line {_short(s)!r} "
                                f"(expected 8 fields 'timestamp tx ty tz qx qy qz qw', got {len(parts)})")
         try:
             vals = [float(p) for p in parts]
         except ValueError:
-            check_values(len(rows))
+            check_values()
             raise DatasetError(f"{path}:{n}: malformed line {_short(s)!r} (non-numeric field)") from None
         rows.append(vals)
         lines.append(n)
         texts.append(s)
         if duplicates == "error" and vals[0] in line_of:
-            check_values(len(rows))
+            check_values()
             raise DatasetError(f"{path}:{n}: timestamp {parts[0]} repeats line {line_of[vals[0]]} "
                                f"(one pose per timestamp)")
         line_of.setdefault(vals[0], n)
     if not rows:
         raise DatasetError(f"{path}: no poses in {what} file (only comments or empty)")
-    check_values(len(rows))
+    check_values()
     a = np.asarray(rows, dtype=np.float64)
     order = np.argsort(a[:, 0], kind="stable")
     a = a[order]
