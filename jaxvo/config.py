@@ -278,11 +278,17 @@ class TrackConfig(NamedTuple):
     #: at once to the latest successful frame at least ``lag`` back, as a switch would after it,
     #: and is estimated once more against that. docs/decisions/refresh.md.
     refresh: Annotated[bool, flag()] = True
-    #: With window > 1 and RANSAC: the outlier fraction (``Config.w``, in [0, 1)) that the
-    #: estimates of a new keyframe against the window's older keyframes assume, which sets how
-    #: many hypotheses they draw; None: as the other estimates (``outliers``, else ``Config.w``).
+    #: With window > 1 and RANSAC: the outlier fraction (``Config.w``, in [0, 1)) that the RANSAC
+    #: estimates of a new keyframe against the window's older keyframes assume (see
+    #: ``window_method``), which sets how many hypotheses they draw; None: as the other estimates
+    #: (``outliers``, else ``Config.w``).
     #: docs/decisions/window.md.
     window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="as outliers")] = None
+    #: With window > 1 and RANSAC: the method of a new keyframe's estimates against the window's
+    #: older keyframes that carry static weights (those of the calm mode carry none and are
+    #: estimated with RANSAC, as every other estimate): "huber" (Huber IRLS from the chained pose,
+    #: with that keyframe's static weights), "classic" or "ransac". docs/decisions/window.md.
+    window_method: Annotated[str, choice("huber", "classic", "ransac")] = "huber"
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.

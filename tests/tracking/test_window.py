@@ -188,9 +188,10 @@ def test_adaptive_sets_the_tracking_estimates_count_where_it_segments():
 
 def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crowd):
     """TrackConfig.outliers is the Config.w of every estimate of the tracking with the segmentation
-    (default None: Config.w), TrackConfig.window_outliers that of the estimates against the
-    window's older keyframes only (None: as outliers). Equal values give the same poses, a small
-    one draws fewer hypotheses, and none compiles the estimator again (w is a traced value)."""
+    (default None: Config.w), TrackConfig.window_outliers that of the RANSAC estimates against the
+    window's older keyframes only (None: as outliers; window_method "ransac" here, so that every
+    such estimate is one). Equal values give the same poses, a small one draws fewer hypotheses,
+    and none compiles the estimator again (w is a traced value)."""
     seq, frames = crowd
     drawn = {}
 
@@ -202,7 +203,7 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
             return est
 
     def run(policy):
-        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
+        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy._replace(window_method="ransac"))
         for f in frames[:40]:
             odo.add(f)
         return odo
@@ -228,6 +229,51 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
     assert max(drawn[(0.2, 0.01, "track")]) > 2 * 2     # the window's setting only
     assert max(drawn[(0.01, None, "track")]) <= 2 * 2 and max(drawn[(0.01, None, "window")]) <= 2 * 2
     assert sum(drawn[(0.2, None, "track")]) < sum(drawn[(None, None, "track")])
+
+
+def test_window_method_estimates_weighted_keyframes_with_huber_and_calm_ones_with_ransac(crowd, monkeypatch):
+    """TrackConfig.window_method (default "huber") is the method of a new keyframe's estimates
+    against the window's older keyframes that carry static weights; those against keyframes of the
+    calm mode (no weights) and every other estimate stay RANSAC's, and a classic tracking keeps
+    classic. One program per method: no estimator is traced again per frame or per window update."""
+    from jaxvo.tracking import odometry
+    seq, frames = crowd
+    calls, purpose = [], [None]
+    estimate = odometry.estimate_motion
+
+    def spy(ref, cur, camera, config, key, **kw):
+        calls.append((purpose[0], kw.get("weights") is not None, config.method))
+        return estimate(ref, cur, camera, config, key, **kw)
+
+    monkeypatch.setattr(odometry, "estimate_motion", spy)
+
+    class Recording(Odometry):
+        def _estimate(self, what, *args):
+            purpose[0] = what
+            return super()._estimate(what, *args)
+
+    def run(policy, n=60):
+        odo = Recording(CAM, key=jax.random.PRNGKey(1), policy=policy)
+        for f in frames[:n]:
+            odo.add(f)
+        return odo
+
+    odo = run(TrackConfig())
+    assert TrackConfig().window_method == "huber"
+    assert any(p == "window" and w for p, w, _ in calls)
+    assert all(m == ("huber" if p == "window" and w else "ransac") for p, w, m in calls), calls
+    traces = trace_count()
+    np.testing.assert_array_equal(np.stack(run(TrackConfig()).poses), np.stack(odo.poses))
+    assert trace_count() == traces
+    calls.clear()
+    ransac = run(TrackConfig(window_method="ransac"))
+    assert calls and all(m == "ransac" for _, _, m in calls)
+    assert not np.array_equal(np.stack(ransac.poses), np.stack(odo.poses))
+    classic = Odometry(CAM, Config(method="classic"))
+    assert classic._window_weighted_config is classic._window_config
+    assert classic._window_config.method == "classic"
+    with pytest.raises(ValueError, match="window_method"):
+        TrackConfig(window_method="lm").validate()
 
 
 def test_window_drifts_less_than_the_single_reference(crowd):
