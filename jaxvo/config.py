@@ -286,9 +286,11 @@ class TrackConfig(NamedTuple):
     window_outliers: Annotated[Optional[float], real(0, 1, hi_open=True, none_means="as outliers")] = None
     #: With window > 1 and RANSAC: the method of a new keyframe's estimates against the window's
     #: older keyframes that carry static weights (those of the calm mode carry none and are
-    #: estimated with RANSAC, as every other estimate): "huber" (Huber IRLS from the chained pose,
-    #: with that keyframe's static weights), "classic" or "ransac". docs/decisions/window.md.
-    window_method: Annotated[str, choice("huber", "classic", "ransac")] = "huber"
+    #: estimated with RANSAC, as every other estimate): "ransac" (as the tracking's other
+    #: estimates), "huber" (Huber IRLS from the chained pose, with that keyframe's static weights:
+    #: better and faster on the Bonn crowd, worse where a person moves fast and close) or
+    #: "classic". docs/decisions/window.md.
+    window_method: Annotated[str, choice("ransac", "huber", "classic")] = "ransac"
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.

@@ -101,8 +101,8 @@ def _window_method_config(config: Config, method: str) -> Config:
     where it is RANSAC's, else ``config`` (a classic or Huber tracking keeps its method).
 
     Such an estimate starts from the chained pose, and the keyframe's static weights already
-    leave out what the segmentation saw move; on the Bonn crowd its Huber estimate makes better
-    edges than RANSAC's draws, in half the time (docs/decisions/window.md)."""
+    leave out what the segmentation saw move; a Huber estimate there takes half of RANSAC's time
+    (docs/decisions/window.md)."""
     if config.method != "ransac" or method == "ransac":
         return config
     return config.replace(method=method)

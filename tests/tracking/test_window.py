@@ -188,10 +188,9 @@ def test_adaptive_sets_the_tracking_estimates_count_where_it_segments():
 
 def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crowd):
     """TrackConfig.outliers is the Config.w of every estimate of the tracking with the segmentation
-    (default None: Config.w), TrackConfig.window_outliers that of the RANSAC estimates against the
-    window's older keyframes only (None: as outliers; window_method "ransac" here, so that every
-    such estimate is one). Equal values give the same poses, a small one draws fewer hypotheses,
-    and none compiles the estimator again (w is a traced value)."""
+    (default None: Config.w), TrackConfig.window_outliers that of the estimates against the
+    window's older keyframes only (None: as outliers). Equal values give the same poses, a small
+    one draws fewer hypotheses, and none compiles the estimator again (w is a traced value)."""
     seq, frames = crowd
     drawn = {}
 
@@ -203,7 +202,7 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
             return est
 
     def run(policy):
-        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy._replace(window_method="ransac"))
+        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
         for f in frames[:40]:
             odo.add(f)
         return odo
@@ -232,10 +231,11 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
 
 
 def test_window_method_estimates_weighted_keyframes_with_huber_and_calm_ones_with_ransac(crowd, monkeypatch):
-    """TrackConfig.window_method (default "huber") is the method of a new keyframe's estimates
-    against the window's older keyframes that carry static weights; those against keyframes of the
-    calm mode (no weights) and every other estimate stay RANSAC's, and a classic tracking keeps
-    classic. One program per method: no estimator is traced again per frame or per window update."""
+    """TrackConfig.window_method (default "ransac": every estimate RANSAC's) is the method of a new
+    keyframe's estimates against the window's older keyframes that carry static weights; with
+    "huber" those against keyframes of the calm mode (no weights) and every other estimate stay
+    RANSAC's, and a classic tracking keeps classic. One program per method: no estimator is traced
+    again per frame or per window update."""
     from jaxvo.tracking import odometry
     seq, frames = crowd
     calls, purpose = [], [None]
@@ -258,15 +258,16 @@ def test_window_method_estimates_weighted_keyframes_with_huber_and_calm_ones_wit
             odo.add(f)
         return odo
 
-    odo = run(TrackConfig())
-    assert TrackConfig().window_method == "huber"
+    odo = run(TrackConfig(window_method="huber"))
     assert any(p == "window" and w for p, w, _ in calls)
     assert all(m == ("huber" if p == "window" and w else "ransac") for p, w, m in calls), calls
     traces = trace_count()
-    np.testing.assert_array_equal(np.stack(run(TrackConfig()).poses), np.stack(odo.poses))
+    np.testing.assert_array_equal(np.stack(run(TrackConfig(window_method="huber")).poses), np.stack(odo.poses))
     assert trace_count() == traces
     calls.clear()
-    ransac = run(TrackConfig(window_method="ransac"))
+    assert TrackConfig().window_method == "ransac"
+    ransac = run(TrackConfig())
+    assert ransac._window_weighted_config is ransac._window_config
     assert calls and all(m == "ransac" for _, _, m in calls)
     assert not np.array_equal(np.stack(ransac.poses), np.stack(odo.poses))
     classic = Odometry(CAM, Config(method="classic"))
