@@ -8,7 +8,7 @@ per level), :mod:`~jaxvo.estimator.trust` (the final pass's statistics and the f
 :mod:`~jaxvo.estimator.levels` (the coarse-to-fine program), :mod:`~jaxvo.estimator.inputs` (its
 checked arguments) and :mod:`~jaxvo.estimator.motion` (:func:`estimate_motion`, the entry point).
 """
-from jaxvo.estimator.inputs import EstimateArgs, as_float32, checked_config, checked_key, estimate_args
+from jaxvo.estimator.inputs import EstimateArgs, as_float32, checked_config, checked_key, estimate_args, num_levels
 from jaxvo.estimator.levels import estimate_arrays, estimate_arrays_jit, trace_count
 from jaxvo.estimator.motion import PreparedFrame, estimate_motion, prepare_frame
 from jaxvo.estimator.result import MotionEstimate
@@ -17,4 +17,4 @@ from jaxvo.estimator.trust import TrustStats, explain_validity, pixel_counts
 
 __all__ = ["EstimateArgs", "MotionEstimate", "PreparedFrame", "TrustStats", "as_float32", "checked_config", "checked_key",
            "estimate_args", "estimate_arrays", "estimate_arrays_jit", "estimate_motion", "explain_validity",
-           "least_squares", "pixel_counts", "prepare_frame", "trace_count"]
+           "least_squares", "num_levels", "pixel_counts", "prepare_frame", "trace_count"]

@@ -5,8 +5,9 @@ Each sequence keeps its own host-side policy (reference choice, segmentation, he
 :meth:`Odometry.prepare` / :meth:`Odometry.finish`); only the estimates are batched. The
 batch has a fixed size for the whole run (the number of sequences rounded up to a multiple of
 the device count; a finished sequence's slot repeats another slot's inputs and its result is
-dropped), so the batched program compiles once. Sequences must share the image size; the
-cameras may differ (their intrinsics are vmapped). Each sequence gets exactly the keys of
+dropped), so each batched program compiles once: one for the estimates with static weights,
+one for those without (the calm mode's, at their own finest level: :meth:`Odometry.config_for`).
+Sequences must share the image size; the cameras may differ (their intrinsics are vmapped). Each sequence gets exactly the keys of
 :func:`jaxvo.tracking.odometry.track`, so its result equals the sequence run alone up to the
 floating-point differences of the batched program (tests/test_batch.py).
 """
@@ -94,7 +95,6 @@ def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config
     if not (len(cameras) == len(keys) == len(callbacks) == n):
         raise ValueError("track_batch needs one camera, key and callback per sequence")
     odos = [Odometry(c, config, k, policy) for c, k in zip(cameras, keys)]
-    config = odos[0].estimate_config if n else config
     iters = [iter(s) for s in sequences]
     active = list(range(n))
     size = batch_size(n)
@@ -110,8 +110,17 @@ def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config
                 pairs[s] = pair
         if not pairs:
             continue
-        ests = estimate_batch(list(pairs.values()), [cameras[s] for s in pairs], config, size)
-        for (s, pair), est in zip(pairs.items(), ests):
+        # the estimates with static weights and those without (the calm mode's, at its own finest
+        # level: Odometry.config_for) are two batched calls; all sequences share config and policy
+        ests = {}
+        for calm in (False, True):
+            group = [s for s, p in pairs.items() if (p.weights is None) == calm]
+            if group:
+                cfg = odos[group[0]].config_for("track", pairs[group[0]].weights)
+                ests.update(zip(group, estimate_batch([pairs[s] for s in group], [cameras[s] for s in group], cfg,
+                                                      size)))
+        for s, pair in pairs.items():
+            est = ests[s]
             step = odos[s].finish(pair, est)
             if callbacks[s] is not None:
                 callbacks[s](step)

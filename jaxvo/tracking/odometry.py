@@ -12,7 +12,8 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame
-from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, prepare_frame
+from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, num_levels, \
+    prepare_frame
 from jaxvo.tracking import segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
@@ -108,6 +109,21 @@ def _window_method_config(config: Config, method: str) -> Config:
     return config.replace(method=method)
 
 
+def _calm_config(config: Config, policy: TrackConfig, camera: Camera) -> Config:
+    """The Config of the tracking's estimates without static weights: with the segmentation and
+    RANSAC, ``config`` with ``Config.finest_level`` = ``TrackConfig.calm_finest_level`` (at least
+    config's, at most its coarsest level for ``camera``'s image size); else ``config``.
+
+    Without weights the reference is the previous frame of a scene the segmentation sees as static
+    (docs/decisions/calm-mode.md): a baseline that short is resolved at half resolution as well as
+    at full, where the finest level costs most of the estimate's time."""
+    if not policy.segment or config.method != "ransac" or policy.calm_finest_level is None:
+        return config
+    coarsest = num_levels(config, camera.width, camera.height) - 1
+    level = min(max(policy.calm_finest_level, config.finest_level), coarsest)
+    return config if level == config.finest_level else config.replace(finest_level=level)
+
+
 def _rigid(T) -> np.ndarray:
     """float64 copy of a float32 estimate with its rotation re-orthonormalised, so that
     chaining thousands of them (and inverting by transpose) stays rigid."""
@@ -191,6 +207,9 @@ class Odometry:
         # those of them against keyframes with static weights (TrackConfig.window_method)
         self._window_config = _with_outliers(self.estimate_config, self.policy.window_outliers)
         self._window_weighted_config = _window_method_config(self._window_config, self.policy.window_method)
+        # the estimates without static weights (TrackConfig.calm_finest_level)
+        self._calm_config = _calm_config(self.estimate_config, self.policy, camera)
+        self._window_calm_config = _calm_config(self._window_config, self.policy, camera)
         self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self.static_map = StaticMap(camera, self.config.max_depth, self.params) if self.policy.segment \
@@ -470,6 +489,15 @@ class Odometry:
         """Frame i made ready for estimates (its pyramid, made by :meth:`prepare`)."""
         return self._pyramids[i]
 
+    def config_for(self, purpose: str, weights) -> Config:
+        """The Config of an estimate made for ``purpose`` (see :attr:`timings`) with ``weights``
+        (a reference's static weights, or None): :attr:`estimate_config`, for "window" with
+        ``TrackConfig.window_outliers`` as ``Config.w`` and, with weights, ``TrackConfig.window_method``
+        as its method; without weights (the calm mode) at ``TrackConfig.calm_finest_level``."""
+        if purpose == "window":
+            return self._window_calm_config if weights is None else self._window_weighted_config
+        return self._calm_config if weights is None else self.estimate_config
+
     def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
         """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
         and :attr:`estimate_config` (for ``purpose`` "window": with ``TrackConfig.window_outliers`` as ``Config.w``,
@@ -477,8 +505,7 @@ class Odometry:
         from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
         estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
         time appended under ``purpose`` (see :attr:`timings`)."""
-        config = self.estimate_config if purpose != "window" else \
-            self._window_config if weights is None else self._window_weighted_config
+        config = self.config_for(purpose, weights)
         if self.timings is None:
             return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, config, key, init=init,
                                    weights=weights)

@@ -66,6 +66,32 @@ def test_batch_equals_each_sequence_alone_and_compiles_once(frames):
     assert trace_count() == before
 
 
+def test_calm_estimates_are_their_own_batched_call(frames, monkeypatch):
+    """With the segmentation and RANSAC (the default policy), the estimates without static weights
+    (the calm mode's: this room is static) run as their own batched call at
+    TrackConfig.calm_finest_level, the weighted ones at the config's finest level, each program
+    traced once (the comparison with each sequence alone is the classic test above: RANSAC
+    programs are slow to compile)."""
+    from jaxvo.tracking import batch
+    calls = []
+    real = batch.estimate_batch
+
+    def spy(pairs, cameras, config, size=None):
+        calls.append((tuple(p.weights is None for p in pairs), config.finest_level))
+        return real(pairs, cameras, config, size)
+
+    monkeypatch.setattr(batch, "estimate_batch", spy)
+    seqs, keys = [frames, frames[:3]], [jax.random.key(1), jax.random.key(2)]
+    before = trace_count()
+    long, short = track_batch(seqs, [CAM] * 2, Config(), keys)
+    assert trace_count() - before <= 2
+    assert all(len(set(calm)) == 1 and level == (1 if calm[0] else 0) for calm, level in calls), calls
+    assert {level for _, level in calls} == {0, 1}, calls
+    assert long.valid.all() and short.valid.all() and long.reference.tolist() == [0, 1, 2, 3]
+    # the same first frames with other keys: the same poses to RANSAC's scatter
+    np.testing.assert_allclose(short.poses, long.poses[:3], atol=5e-3)
+
+
 def test_estimate_batch_matches_estimate_motion(frames):
     """Segmented default policy's inputs (weights) and RANSAC: each batched estimate is the
     estimate of its pair alone within a few mm: the batched program rounds differently (e.g. its
