@@ -291,12 +291,14 @@ class TrackConfig(NamedTuple):
     #: better and faster on the Bonn crowd, worse where a person moves fast and close) or
     #: "classic". docs/decisions/window.md.
     window_method: Annotated[str, choice("ransac", "huber", "classic")] = "ransac"
-    #: With the segmentation (``segment``) and RANSAC: the finest pyramid level of every estimate
-    #: made without static weights (the calm mode's frame-to-frame estimates, and a new
-    #: keyframe's estimates against calm keyframes), at least ``Config.finest_level`` and at most
-    #: the coarsest level; None: ``Config.finest_level``. A short baseline on a static scene
-    #: needs no full resolution, and half of it is faster. docs/decisions/calm-mode.md.
-    calm_finest_level: Annotated[Optional[int], integer(0, none_means="Config.finest_level")] = 1
+    #: With the segmentation (``segment``) and RANSAC: every estimate made without static weights
+    #: (the calm mode's frame-to-frame estimates, and a new keyframe's estimates against calm
+    #: keyframes) stops at the coarsest pyramid level at least this many pixels wide (>= 1; 640x480
+    #: frames: level 1, 320x240; frames narrower than it: level 0), never finer than
+    #: ``Config.finest_level``; None: at ``Config.finest_level``. A short baseline on a static
+    #: scene needs no more than a Kinect-class camera's half resolution, which is faster.
+    #: docs/decisions/calm-mode.md.
+    calm_min_width: Annotated[Optional[int], integer(1, none_means="at Config.finest_level")] = 320
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.

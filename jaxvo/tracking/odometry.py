@@ -111,16 +111,17 @@ def _window_method_config(config: Config, method: str) -> Config:
 
 def _calm_config(config: Config, policy: TrackConfig, camera: Camera) -> Config:
     """The Config of the tracking's estimates without static weights: with the segmentation and
-    RANSAC, ``config`` with ``Config.finest_level`` = ``TrackConfig.calm_finest_level`` (at least
-    config's, at most its coarsest level for ``camera``'s image size); else ``config``.
+    RANSAC, ``config`` with ``Config.finest_level`` at the coarsest level of ``camera``'s pyramid
+    at least ``TrackConfig.calm_min_width`` pixels wide (never finer than config's); else ``config``.
 
     Without weights the reference is the previous frame of a scene the segmentation sees as static
-    (docs/decisions/calm-mode.md): a baseline that short is resolved at half resolution as well as
-    at full, where the finest level costs most of the estimate's time."""
-    if not policy.segment or config.method != "ransac" or policy.calm_finest_level is None:
+    (docs/decisions/calm-mode.md): a baseline that short is resolved at a Kinect-class camera's half
+    resolution as well as at its full one, where the finest level costs most of the estimate's time."""
+    if not policy.segment or config.method != "ransac" or policy.calm_min_width is None:
         return config
-    coarsest = num_levels(config, camera.width, camera.height) - 1
-    level = min(max(policy.calm_finest_level, config.finest_level), coarsest)
+    levels = num_levels(config, camera.width, camera.height)
+    level = max([lv for lv in range(levels) if camera.at_level(lv).width >= policy.calm_min_width] + [0])
+    level = max(level, config.finest_level)
     return config if level == config.finest_level else config.replace(finest_level=level)
 
 
@@ -207,7 +208,7 @@ class Odometry:
         # those of them against keyframes with static weights (TrackConfig.window_method)
         self._window_config = _with_outliers(self.estimate_config, self.policy.window_outliers)
         self._window_weighted_config = _window_method_config(self._window_config, self.policy.window_method)
-        # the estimates without static weights (TrackConfig.calm_finest_level)
+        # the estimates without static weights (TrackConfig.calm_min_width)
         self._calm_config = _calm_config(self.estimate_config, self.policy, camera)
         self._window_calm_config = _calm_config(self._window_config, self.policy, camera)
         self.key = checked_key(key)
@@ -493,7 +494,7 @@ class Odometry:
         """The Config of an estimate made for ``purpose`` (see :attr:`timings`) with ``weights``
         (a reference's static weights, or None): :attr:`estimate_config`, for "window" with
         ``TrackConfig.window_outliers`` as ``Config.w`` and, with weights, ``TrackConfig.window_method``
-        as its method; without weights (the calm mode) at ``TrackConfig.calm_finest_level``."""
+        as its method; without weights (the calm mode) at ``TrackConfig.calm_min_width``'s level."""
         if purpose == "window":
             return self._window_calm_config if weights is None else self._window_weighted_config
         return self._calm_config if weights is None else self.estimate_config

@@ -68,8 +68,8 @@ def test_batch_equals_each_sequence_alone_and_compiles_once(frames):
 
 def test_calm_estimates_are_their_own_batched_call(frames, monkeypatch):
     """With the segmentation and RANSAC (the default policy), the estimates without static weights
-    (the calm mode's: this room is static) run as their own batched call at
-    TrackConfig.calm_finest_level, the weighted ones at the config's finest level, each program
+    (the calm mode's: this room is static) run as their own batched call at the level of
+    TrackConfig.calm_min_width (80 here: level 1), the weighted ones at the config's finest level, each program
     traced once (the comparison with each sequence alone is the classic test above: RANSAC
     programs are slow to compile)."""
     from jaxvo.tracking import batch
@@ -83,7 +83,7 @@ def test_calm_estimates_are_their_own_batched_call(frames, monkeypatch):
     monkeypatch.setattr(batch, "estimate_batch", spy)
     seqs, keys = [frames, frames[:3]], [jax.random.key(1), jax.random.key(2)]
     before = trace_count()
-    long, short = track_batch(seqs, [CAM] * 2, Config(), keys)
+    long, short = track_batch(seqs, [CAM] * 2, Config(), keys, TrackConfig(calm_min_width=80))
     assert trace_count() - before <= 2
     assert all(len(set(calm)) == 1 and level == (1 if calm[0] else 0) for calm, level in calls), calls
     assert {level for _, level in calls} == {0, 1}, calls

@@ -426,12 +426,13 @@ def test_calm_scenes_go_frame_to_frame_and_persons_bring_keyframes(frames320):
     assert never.reference.tolist() == [0, 0, 0, 0, 0]
 
 
-def test_calm_estimates_run_at_the_calm_finest_level(frames320, monkeypatch):
+def test_calm_estimates_stop_at_the_calm_min_width_level(frames320, monkeypatch):
     """With the segmentation and RANSAC, the estimates without static weights (the calm mode's)
-    stop at TrackConfig.calm_finest_level (default 1: half resolution), the weighted ones at
-    Config.finest_level; None keeps every estimate at the config's level, a coarser config's
-    level wins, the coarsest level caps it, and classic or unsegmented trackings are untouched.
-    On a static scene the half-resolution chain stays as accurate as the full one."""
+    stop at the coarsest level at least TrackConfig.calm_min_width pixels wide (default 320: level 1
+    of 640x480 frames, level 0 of 320x240 ones), the weighted ones at Config.finest_level; None keeps
+    every estimate at the config's level, a coarser config's level wins, and classic or unsegmented
+    trackings are untouched. On a static scene the half-resolution chain stays about as accurate as
+    the full one."""
     from jaxvo.tracking import odometry
     s, cam, rs = frames320
     calls = []
@@ -451,23 +452,25 @@ def test_calm_estimates_run_at_the_calm_finest_level(frames320, monkeypatch):
         E = geometry.inverse(static.poses[-1]) @ static.poses[0] @ geometry.inverse(tr.poses[0]) @ tr.poses[-1]
         return float(np.linalg.norm(E[:3, 3])), list(calls)
 
-    half, half_calls = final_error(TrackConfig())
-    full, full_calls = final_error(TrackConfig(calm_finest_level=None))
-    assert TrackConfig().calm_finest_level == 1
+    half, half_calls = final_error(TrackConfig(calm_min_width=160))     # 320x240 frames: level 1
+    full, full_calls = final_error(TrackConfig())
     assert (True, 1) in half_calls and all(level == (1 if calm else 0) for calm, level in half_calls), half_calls
     assert all(level == 0 for _, level in full_calls) and (True, 0) in full_calls, full_calls
     assert half < 0.005 and full < 0.005 and half < full + 0.002, (half, full)
     calls.clear()
-    track([r.frame() for r in rs[:14]], cam, Config(), jax.random.key(0))
+    track([r.frame() for r in rs[:14]], cam, Config(), jax.random.key(0), policy=TrackConfig(calm_min_width=160))
     assert {(True, 1), (False, 0)} <= set(calls), calls                # the busy scene has both kinds
+    assert TrackConfig().calm_min_width == 320
+    assert Odometry(CAM)._calm_config.finest_level == 1                # 640x480
+    assert Odometry(CAM)._window_calm_config.finest_level == 1 and Odometry(CAM).estimate_config.finest_level == 0
     # 320x240: three levels, 0-2
-    assert Odometry(cam, Config(finest_level=2))._calm_config.finest_level == 2
-    assert Odometry(cam, policy=TrackConfig(calm_finest_level=7))._calm_config.finest_level == 2
-    for odo in (Odometry(cam, Config(method="classic")), Odometry(cam, policy=TrackConfig.keyframes()),
-                Odometry(cam, policy=TrackConfig(calm_finest_level=None))):
+    assert Odometry(cam, Config(finest_level=2), policy=TrackConfig(calm_min_width=160))._calm_config.finest_level == 2
+    assert Odometry(cam, policy=TrackConfig(calm_min_width=1))._calm_config.finest_level == 2
+    for odo in (Odometry(cam), Odometry(CAM, Config(method="classic")), Odometry(CAM, policy=TrackConfig.keyframes()),
+                Odometry(CAM, policy=TrackConfig(calm_min_width=None))):
         assert odo._calm_config is odo.estimate_config and odo._window_calm_config is odo._window_config
-    with pytest.raises(ValueError, match="calm_finest_level"):
-        TrackConfig(calm_finest_level=-1).validate()
+    with pytest.raises(ValueError, match="calm_min_width"):
+        TrackConfig(calm_min_width=0).validate()
 
 
 def test_frame_to_frame_policy_has_no_segmentation(frames320):
