@@ -71,10 +71,12 @@ def main(argv=None):
         if step.static_mask is not None:
             dynamic[step.reference] = ~step.static_mask
         if step.frame in show:
-            est = step.estimate
-            static = np.ones_like(step.static_mask) if step.static_mask is None else step.static_mask
-            inl = np.asarray(est.inlier_mask) & static
-            val = np.asarray(est.valid_mask) | ~static
+            # the estimate's masks at the frame's size (a calm estimate's lie at a coarser level)
+            h, w = frames[step.reference].intensity.shape
+            out, valid = mapping.outlier_mask(step.estimate, w, h, valid_too=True)
+            static = np.ones((h, w), bool) if step.static_mask is None else np.asarray(step.static_mask, bool)
+            inl = valid & ~out & static
+            val = valid | ~static
             panels[step.frame] = (step.reference, viz.outlier_overlay(frames[step.reference].intensity, inl, val))
 
     tr = track(frames, seq.camera, Config(), jax.random.key(args.seed), policy=TrackConfig(), callback=keep)

@@ -37,7 +37,9 @@ class TrackStep(NamedTuple):
 
     frame: index of the frame just added. reference: index of the frame it was
     estimated against (``estimate.inlier_mask`` and ``static_mask`` lie on that frame's
-    pixels); -1 for the first frame. estimate: the :class:`MotionEstimate`
+    pixels: the estimate's masks at its finest level, which for the calm mode's estimates of
+    640x480 frames is half size, ``TrackConfig.calm_min_width``;
+    :func:`jaxvo.pipelines.mapping.outlier_mask` brings them to full size); -1 for the first frame. estimate: the :class:`MotionEstimate`
     (T_cur_ref = T_frame_reference), None for the first frame.
     T_world_cur: (4, 4) float64 pose given to the frame. valid: False if the estimate failed
     and the pose was held (see :class:`TrackConfig`).
