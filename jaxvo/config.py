@@ -295,10 +295,10 @@ class TrackConfig(NamedTuple):
     #: (the calm mode's frame-to-frame estimates, and a new keyframe's estimates against calm
     #: keyframes) stops at the coarsest pyramid level at least this many pixels wide (>= 1; 640x480
     #: frames: level 1, 320x240; frames narrower than it: level 0), never finer than
-    #: ``Config.finest_level``; None: at ``Config.finest_level``. A short baseline on a static
-    #: scene needs no more than a Kinect-class camera's half resolution, which is faster.
-    #: docs/decisions/calm-mode.md.
-    calm_min_width: Annotated[Optional[int], integer(1, none_means="at Config.finest_level")] = 320
+    #: ``Config.finest_level``; None (default): at ``Config.finest_level``. 320 is faster on static
+    #: 640x480 scenes read with their lens (fr2/desk: RPE 1 s 0.0092 against 0.0097 m/s) and loses
+    #: on frames read without it and on some dynamic augmentations. docs/decisions/calm-mode.md.
+    calm_min_width: Annotated[Optional[int], integer(1, none_means="at Config.finest_level")] = None
     #: With window > 1 and the segmentation: where the reference's static mask trusts under this
     #: share of its pixels, in [0, 1] (0: off), a valid estimate is fused with one against the
     #: window's next-older keyframe that trusts more. docs/decisions/second-opinion.md.

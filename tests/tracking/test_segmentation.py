@@ -428,9 +428,9 @@ def test_calm_scenes_go_frame_to_frame_and_persons_bring_keyframes(frames320):
 
 def test_calm_estimates_stop_at_the_calm_min_width_level(frames320, monkeypatch):
     """With the segmentation and RANSAC, the estimates without static weights (the calm mode's)
-    stop at the coarsest level at least TrackConfig.calm_min_width pixels wide (default 320: level 1
-    of 640x480 frames, level 0 of 320x240 ones), the weighted ones at Config.finest_level; None keeps
-    every estimate at the config's level, a coarser config's level wins, and classic or unsegmented
+    stop at the coarsest level at least TrackConfig.calm_min_width pixels wide (320: level 1 of
+    640x480 frames, level 0 of 320x240 ones), the weighted ones at Config.finest_level; None (the
+    default) keeps every estimate at the config's level, a coarser config's level wins, and classic or unsegmented
     trackings are untouched. On a static scene the half-resolution chain stays about as accurate as
     the full one."""
     from jaxvo.tracking import odometry
@@ -453,21 +453,23 @@ def test_calm_estimates_stop_at_the_calm_min_width_level(frames320, monkeypatch)
         return float(np.linalg.norm(E[:3, 3])), list(calls)
 
     half, half_calls = final_error(TrackConfig(calm_min_width=160))     # 320x240 frames: level 1
-    full, full_calls = final_error(TrackConfig())
+    full, full_calls = final_error(TrackConfig())                      # None: full resolution
     assert (True, 1) in half_calls and all(level == (1 if calm else 0) for calm, level in half_calls), half_calls
     assert all(level == 0 for _, level in full_calls) and (True, 0) in full_calls, full_calls
     assert half < 0.005 and full < 0.005 and half < full + 0.002, (half, full)
     calls.clear()
     track([r.frame() for r in rs[:14]], cam, Config(), jax.random.key(0), policy=TrackConfig(calm_min_width=160))
     assert {(True, 1), (False, 0)} <= set(calls), calls                # the busy scene has both kinds
-    assert TrackConfig().calm_min_width == 320
-    assert Odometry(CAM)._calm_config.finest_level == 1                # 640x480
-    assert Odometry(CAM)._window_calm_config.finest_level == 1 and Odometry(CAM).estimate_config.finest_level == 0
+    assert TrackConfig().calm_min_width is None
+    half_res = Odometry(CAM, policy=TrackConfig(calm_min_width=320))    # 640x480: level 1
+    assert half_res._calm_config.finest_level == 1 and half_res._window_calm_config.finest_level == 1
+    assert half_res.estimate_config.finest_level == 0
     # 320x240: three levels, 0-2
     assert Odometry(cam, Config(finest_level=2), policy=TrackConfig(calm_min_width=160))._calm_config.finest_level == 2
     assert Odometry(cam, policy=TrackConfig(calm_min_width=1))._calm_config.finest_level == 2
-    for odo in (Odometry(cam), Odometry(CAM, Config(method="classic")), Odometry(CAM, policy=TrackConfig.keyframes()),
-                Odometry(CAM, policy=TrackConfig(calm_min_width=None))):
+    for odo in (Odometry(CAM), Odometry(cam, policy=TrackConfig(calm_min_width=320)),
+                Odometry(CAM, Config(method="classic"), policy=TrackConfig(calm_min_width=320)),
+                Odometry(CAM, policy=TrackConfig.keyframes(calm_min_width=320))):
         assert odo._calm_config is odo.estimate_config and odo._window_calm_config is odo._window_config
     with pytest.raises(ValueError, match="calm_min_width"):
         TrackConfig(calm_min_width=0).validate()
