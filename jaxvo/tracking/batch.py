@@ -5,9 +5,10 @@ Each sequence keeps its own host-side policy (reference choice, segmentation, he
 :meth:`Odometry.prepare` / :meth:`Odometry.finish`); only the estimates are batched. The
 batch has a fixed size for the whole run (the number of sequences rounded up to a multiple of
 the device count; a finished sequence's slot repeats another slot's inputs and its result is
-dropped), so each batched program compiles once: one for the estimates with static weights,
-one for those without (the calm mode's, at their own finest level: :meth:`Odometry.config_for`).
-Sequences must share the image size; the cameras may differ (their intrinsics are vmapped). Each sequence gets exactly the keys of
+dropped), so each batched program compiles once: one per Config of the estimates (with
+``TrackConfig.calm_min_width`` set, the calm mode's estimates have their own:
+:meth:`Odometry.config_for`). Sequences must share the image size; the cameras may differ
+(their intrinsics are vmapped). Each sequence gets exactly the keys of
 :func:`jaxvo.tracking.odometry.track`, so its result equals the sequence run alone up to the
 floating-point differences of the batched program (tests/test_batch.py).
 """
@@ -110,15 +111,16 @@ def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config
                 pairs[s] = pair
         if not pairs:
             continue
-        # the estimates with static weights and those without (the calm mode's, at its own finest
-        # level: Odometry.config_for) are two batched calls; all sequences share config and policy
+        # one batched call per Config: the estimates with static weights and those without (the
+        # calm mode's, at TrackConfig.calm_min_width's level where it is set: Odometry.config_for);
+        # all sequences share config and policy, so the first sequence's configs stand for all
+        groups = {}
+        for s, p in pairs.items():
+            cfg = odos[0].config_for("track", p.weights)
+            groups.setdefault(id(cfg), (cfg, []))[1].append(s)
         ests = {}
-        for calm in (False, True):
-            group = [s for s, p in pairs.items() if (p.weights is None) == calm]
-            if group:
-                cfg = odos[group[0]].config_for("track", pairs[group[0]].weights)
-                ests.update(zip(group, estimate_batch([pairs[s] for s in group], [cameras[s] for s in group], cfg,
-                                                      size)))
+        for cfg, group in groups.values():
+            ests.update(zip(group, estimate_batch([pairs[s] for s in group], [cameras[s] for s in group], cfg, size)))
         for s, pair in pairs.items():
             est = ests[s]
             step = odos[s].finish(pair, est)
