@@ -37,9 +37,9 @@ class TrackStep(NamedTuple):
 
     frame: index of the frame just added. reference: index of the frame it was
     estimated against (``estimate.inlier_mask`` and ``static_mask`` lie on that frame's
-    pixels: the estimate's masks at its finest level, which for the calm mode's estimates of
-    640x480 frames is half size, ``TrackConfig.calm_min_width``;
-    :func:`jaxvo.pipelines.mapping.outlier_mask` brings them to full size); -1 for the first frame. estimate: the :class:`MotionEstimate`
+    pixels: the estimate's masks at its finest level, coarser for the calm mode's estimates where
+    ``TrackConfig.calm_min_width`` is set; :func:`jaxvo.pipelines.mapping.outlier_mask` brings them
+    to full size); -1 for the first frame. estimate: the :class:`MotionEstimate`
     (T_cur_ref = T_frame_reference), None for the first frame.
     T_world_cur: (4, 4) float64 pose given to the frame. valid: False if the estimate failed
     and the pose was held (see :class:`TrackConfig`).
@@ -503,11 +503,9 @@ class Odometry:
 
     def _estimate(self, purpose: str, ref: int, cur: int, key, init, weights) -> MotionEstimate:
         """The estimate of frame ``cur`` against frame ``ref`` (indices) with this odometry's camera
-        and :attr:`estimate_config` (for ``purpose`` "window": with ``TrackConfig.window_outliers`` as ``Config.w``,
-        and with ``weights``, a keyframe's static weights, by ``TrackConfig.window_method``),
-        from their pyramids (:meth:`_prepared`: a frame's pyramid serves every
-        estimate it takes part in); with :attr:`timings` set (a dict), blocked on and its wall
-        time appended under ``purpose`` (see :attr:`timings`)."""
+        and :meth:`config_for`'s Config, from their pyramids (:meth:`_prepared`: a frame's pyramid
+        serves every estimate it takes part in); with :attr:`timings` set (a dict), blocked on and
+        its wall time appended under ``purpose`` (see :attr:`timings`)."""
         config = self.config_for(purpose, weights)
         if self.timings is None:
             return estimate_motion(self._prepared(ref), self._prepared(cur), self.camera, config, key, init=init,
