@@ -557,7 +557,13 @@ def test_kernel_profile_attributes_the_kernels_to_stages(tmp_path):
             "final masks and statistics"} <= set(stages), sorted(stages)
     assert all(s["ms"] > 0 for s in r["stages"])
     assert sum(s["ms"] for s in r["stages"]) == pytest.approx(r["kernel_ms"])
-    assert stages.get("other", {"share": 0.0})["share"] < 0.25
+    # Which kernels fall outside every named scope is a property of the compiled program, so
+    # it is pinned on the count of distinct kernels. Their share of the time is only bounded
+    # loosely: the many small unattributed kernels (loop conditions, copies) gain the most when
+    # the cores are shared, as they are under xdist.
+    other = stages.get("other", {"share": 0.0, "kernels": 0})
+    assert other["kernels"] < 0.3 * sum(s["kernels"] for s in r["stages"]), r["stages"]
+    assert other["share"] < 0.5, r["stages"]
     # the jaxvo source line of a kernel comes from the compiled program's stack frames
     assert r["kernels"] and sum(k["source"] != "?" for k in r["kernels"]) >= len(r["kernels"]) // 2
     assert "| stage | kernel ms / pair | passes: min - max | share | kernels |" in out.read_text()
