@@ -35,7 +35,8 @@ def _require(*paths):
             pytest.skip(f"real data missing: {p} (set JAXVO_DATA to the data root)")
 
 
-DIAGNOSTICS = ("error_stretches", "exposure", "levers", "map_poses", "mask_limits", "pair_floor", "variants")
+DIAGNOSTICS = ("error_stretches", "exposure", "levers", "map_poses", "mask_limits", "pair_floor", "suite_compiles",
+               "variants")
 
 
 def _script(name):
@@ -53,7 +54,7 @@ def cache(tmp_path_factory):
 
 
 @pytest.mark.parametrize("name", ["table1", "speed", "sweep", "failure_flag", "startup", "variants", "kernel_profile",
-                                  "hindsight_masks", "pair_floor", "error_stretches"])
+                                  "hindsight_masks", "pair_floor", "error_stretches", "suite_compiles"])
 def test_help(name):
     command = ["-m", f"experiments.diagnostics.{name}"] if name in DIAGNOSTICS else [str(EXP / f"{name}.py")]
     r = subprocess.run([sys.executable, *command, "--help"], capture_output=True, text=True, timeout=120, cwd=REPO)
@@ -723,3 +724,55 @@ def test_drift_stats_of_a_short_sequence():
     longer = np.arange(40) / 30.0
     gt40 = np.tile(np.eye(4), (40, 1, 1))
     assert {"ate", "rpe1s_t", "rpe1s_r"} == set(drift.drift_stats(longer, gt40, gt40))
+
+
+_COMPILING_TESTS = """
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def test_compiles_two_programs():
+    # NumPy inputs: the two jitted functions are the only programs
+    jax.jit(lambda x: jnp.sin(x) * 2.0)(np.ones(3, np.float32))
+    jax.jit(lambda x: jnp.cos(x) + 1.0)(np.ones(4, np.float32))
+
+
+def test_compiles_nothing():
+    assert 1 + 1 == 2
+"""
+
+
+def test_suite_compiles_records_each_tests_xla_compilations(tmp_path):
+    """experiments/diagnostics/suite_compiles.py as a pytest plugin on a file of two tests: the one
+    that jits two functions logs two compilations under their names with positive seconds, the
+    other none; the summary adds them up per file, per function and per worker, and the report
+    names its command."""
+    (tmp_path / "test_two.py").write_text(_COMPILING_TESTS)
+    log = tmp_path / "log"
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p",
+                        "experiments.diagnostics.suite_compiles", "--compile-log", str(log), str(tmp_path / "test_two.py")],
+                       capture_output=True, text=True, timeout=300, cwd=REPO,
+                       env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0, r.stdout + r.stderr
+    sc = _script("suite_compiles")
+    rows = {row["test"].split("::")[-1]: row for row in sc.read_log(log)}
+    assert set(rows) == {"test_compiles_two_programs", "test_compiles_nothing"}
+    two, none = rows["test_compiles_two_programs"], rows["test_compiles_nothing"]
+    assert two["compiles"] == 2 and two["xla_s"] > 0 and sum(n for n, _ in two["by_function"].values()) == 2
+    assert all(name.startswith("jit(") for name in two["by_function"]), two["by_function"]
+    assert none["compiles"] == 0 and none["xla_s"] == 0 and none["by_function"] == {}
+    s = sc.summarise(rows.values())
+    assert s["tests"] == 2 and s["compiles"] == 2 and s["xla_s"] == pytest.approx(two["xla_s"])
+    (file_row,) = s["files"]
+    assert file_row["tests"] == 2 and file_row["compiles"] == 2
+    assert [w["name"] for w in s["workers"]] == ["main"] and s["top_tests"][0]["test"].endswith("test_compiles_two_programs")
+    out = tmp_path / "sc.md"
+    assert sc.main(["--from", str(log), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "python -m experiments.diagnostics.suite_compiles --from" in text and "2 tests;" in text
+    assert json.loads(out.with_suffix(".json").read_text())["compiles"] == 2
+    # a folder that already holds records is not run into, an empty one has nothing to summarise
+    assert sc.main(["--log", str(log), "--out", str(out)]) == 2
+    (tmp_path / "empty").mkdir()
+    assert sc.main(["--from", str(tmp_path / "empty"), "--out", str(out)]) == 2
