@@ -753,7 +753,9 @@ def test_suite_compiles_records_each_tests_xla_compilations(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p",
                         "experiments.diagnostics.suite_compiles", "--compile-log", str(log), str(tmp_path / "test_two.py")],
                        capture_output=True, text=True, timeout=300, cwd=REPO,
-                       env={**os.environ, "PYTHONPATH": str(REPO)})
+                       # not named after this test's own xdist worker
+                       env={**{k: v for k, v in os.environ.items() if k != "PYTEST_XDIST_WORKER"},
+                            "PYTHONPATH": str(REPO)})
     assert r.returncode == 0, r.stdout + r.stderr
     sc = _script("suite_compiles")
     rows = {row["test"].split("::")[-1]: row for row in sc.read_log(log)}

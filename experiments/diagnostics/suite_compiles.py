@@ -15,6 +15,7 @@ the CLI subprocesses) are not seen: those tests show as wall time without XLA se
   with this plugin, from the repository root; the arguments after ``--`` go to pytest) and
   writes ``--out`` (markdown) and its ``.json`` beside it; ``--log DIR`` keeps the per-worker
   records there (default: a temporary folder).
+  It exits with 1 where a test failed (the report is written all the same).
 * ``--from DIR`` summarises the records a run left in DIR instead of running the suite.
 * As a plugin alone: ``python -m pytest -q -p experiments.diagnostics.suite_compiles
   --compile-log DIR`` writes ``DIR/<worker>.jsonl``, a line per test.
@@ -140,13 +141,16 @@ def summarise(rows: Iterable[dict], top: int = 25) -> dict:
                           for r in tests[:top]]}
 
 
-def markdown(summary: dict, suite_wall_s: Optional[float]) -> List[str]:
-    """The summary's tables (the lines after the provenance header)."""
+def markdown(summary: dict, suite_wall_s: Optional[float], exit_status: Optional[int] = None) -> List[str]:
+    """The summary's tables (the lines after the provenance header); ``exit_status``: pytest's, where
+    this process ran the suite."""
     s = summary
     lines = ["Each test's own wall time (setup, call, teardown) and the XLA compilations JAX reported in its "
              "worker while it ran (a persistent-cache hit compiles nothing); seconds are summed over the "
              "workers, which run at once. Compilations in processes a test starts are not seen.", ""]
     total = f"{s['tests']} tests" + (f" in {suite_wall_s:.0f} s wall" if suite_wall_s is not None else "")
+    if exit_status is not None:
+        total += f" (pytest's exit status {exit_status}" + (": every test passed)" if exit_status == 0 else ": some failed)")
     lines += [f"{total}; test-seconds {s['wall_s']:.0f}, of them XLA {s['xla_s']:.0f} s in {s['compiles']} compilations.",
               "", "| worker | tests | test s | XLA s | compilations |", "| --- | --- | --- | --- | --- |"]
     lines += [f"| {w['name']} | {w['tests']} | {w['wall_s']:.0f} | {w['xla_s']:.0f} | {w['compiles']} |" for w in s["workers"]]
@@ -175,7 +179,7 @@ def main(argv: Optional[List[str]] = None) -> int:
 
     from experiments import common
 
-    suite_wall = None
+    suite_wall = rc = None
     if args.source is not None:
         folder = args.source
         if not folder.is_dir():
@@ -199,9 +203,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 2
     summary = summarise(rows)
     lines = common.provenance_md("Where the test suite's time goes: XLA's compilations per test", __file__, argv)
-    common.write_outputs(args.out, lines + markdown(summary, suite_wall), {"suite_wall_s": suite_wall, **summary})
+    common.write_outputs(args.out, lines + markdown(summary, suite_wall, rc),
+                         {"suite_wall_s": suite_wall, "exit_status": rc, **summary})
     print(f"wrote {args.out}")
-    return 0
+    return 1 if rc else 0
 
 
 if __name__ == "__main__":
