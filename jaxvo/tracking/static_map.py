@@ -129,8 +129,9 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
     (:meth:`jaxvo.runtime.aot.Program.compile_ahead`): read from the cache folder where an
     earlier process wrote them (no trace), else traced, written and compiled. The calls later
     find them in JAX's caches (or, if one is not done yet, compile it themselves); an error here
-    is left for that call to raise. Not a daemon thread: an interpreter that exits while XLA
-    compiles in a daemon thread may crash.
+    is left for that call to raise. Not a daemon thread, even when started from one (as the
+    CLI's job thread is): an interpreter that exits while XLA compiles in a daemon thread may
+    crash, and the CLI waits for the thread before it exits, so that the programs are kept.
 
     L: (h, w) float32 map-level log-odds; md: (h, w) float32 map-level depth; cue: a frame's
     :func:`segmentation.cue_images`; shape: the frames' (H, W); camera, cue_camera: the map
@@ -168,7 +169,7 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         # and the stack of the views' depths (StaticMap.new_reference), run once to compile it
         jnp.stack([jnp.zeros(md.shape, jnp.float32)] * n)
 
-    thread = threading.Thread(target=compile_all, name="jaxvo-compile-map")
+    thread = threading.Thread(target=compile_all, name="jaxvo-compile-map", daemon=False)
     thread.start()
     return thread
 

@@ -153,12 +153,13 @@ def refine(poses, edges, K: int) -> np.ndarray:
 
 
 def compile_ahead(K: int):
-    """Make :func:`refine`'s program for K nodes ready in a background thread (started at the
-    first frame, like the segmentation's programs: ready by the first keyframe switch): read
-    from the cache folder where an earlier process exported it, else traced, exported and
-    compiled (:meth:`jaxvo.runtime.aot.Program.compile_ahead`); returns the thread. An error is
-    left for the real call to raise. Not a daemon thread: an interpreter that exits while XLA
-    compiles in a daemon thread may crash."""
+    """Make :func:`refine`'s program for K nodes ready in a background thread (started once the
+    first estimate is done, ready by the first window join): read from the cache folder where an
+    earlier process exported it, else traced, exported and compiled
+    (:meth:`jaxvo.runtime.aot.Program.compile_ahead`); returns the thread. An error is left for
+    the real call to raise. Not a daemon thread, even when started from one (as the CLI's job
+    thread is): an interpreter that exits while XLA compiles in a daemon thread may crash, and
+    the CLI waits for the thread before it exits, so that the program is kept for later runs."""
     E = K * (K - 1) // 2
 
     def f32(*shape):
@@ -174,6 +175,6 @@ def compile_ahead(K: int):
         except Exception:  # noqa: BLE001 - the real call compiles it and raises what is wrong
             return
 
-    thread = threading.Thread(target=compile_it, name="jaxvo-compile-window")
+    thread = threading.Thread(target=compile_it, name="jaxvo-compile-window", daemon=False)
     thread.start()
     return thread
