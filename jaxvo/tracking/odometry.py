@@ -276,6 +276,11 @@ class Odometry:
             if self.policy.window > 1:
                 self._window = [0]
             return None
+        if j == 2 and self.policy.window > 1:
+            # the pose graph is first needed at a window join, frames later: made ready once the
+            # first pose is out, so that on a new machine its compilation does not share the cores
+            # with the estimator's before it, nor its loading a warm one's (docs/decisions/start-up.md)
+            window.compile_ahead(self.policy.window)
         # the previous frame's pose relative to the reference, both from one chain: until a frame is
         # posed from the reference's refined anchor, the previous poses rest on the anchor it had
         # before the window moved it (_windowed_anchor)
@@ -293,11 +298,6 @@ class Odometry:
         update the policy and segmentation; returns the frame's :class:`TrackStep`."""
         j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.trust
         policy, ref, poses = self.policy, self._ref, self.poses
-        if j == 1 and policy.window > 1:
-            # the pose graph is first needed at a window join, frames later: compiled once the first
-            # estimate is, so that on a new machine its compilation does not share the cores with
-            # the estimator's before the first pose (docs/decisions/start-up.md)
-            window.compile_ahead(policy.window)
         T_world_ref = self._chain_pose(ref)
         # the guess is the previous frame's pose, held where its estimate failed, while the camera
         # moved on; only RANSAC's failure flag is trusted over that stale guess (TrackConfig.catch_up)

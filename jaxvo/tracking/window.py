@@ -153,9 +153,9 @@ def refine(poses, edges, K: int) -> np.ndarray:
 
 
 def compile_ahead(K: int):
-    """Make :func:`refine`'s program for K nodes ready in a background thread (started once the
-    first estimate is done, ready by the first window join): read from the cache folder where an
-    earlier process exported it, else traced, exported and compiled
+    """Make :func:`refine`'s program for K nodes ready in a background thread (started when the
+    third frame is added, once the first pose is out; ready by the first window join): read from
+    the cache folder where an earlier process exported it, else traced, exported and compiled
     (:meth:`jaxvo.runtime.aot.Program.compile_ahead`); returns the thread. An error is left for
     the real call to raise. Not a daemon thread, even when started from one (as the CLI's job
     thread is): an interpreter that exits while XLA compiles in a daemon thread may crash, and
