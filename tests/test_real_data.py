@@ -168,7 +168,8 @@ def test_second_opinion_fuses_where_people_cover_the_reference():
     before the people come, none with it off, and the track ends no worse than with it off by more
     than the seeds' spread (3 mm). Measured on 2-core AMD EPYCs with AVX-512, seed 0: family 25
     model 17, 3 such frames, ATE 0.0221 against 0.0255 m; family 26 model 2, 0.0223 against 0.0203
-    m (seeds 0-5 there: 0.0207 against 0.0227 m on average, off from 0.0199 to 0.0276)."""
+    m, and over seeds 0-5 there 0.0211 against 0.0230 m, off from 0.0203 to 0.0280 (`python -m
+    experiments.diagnostics.levers` on this reading, ground truth interpolated at the frames)."""
     bonn_crowd = _sequence("bonn/rgbd_bonn_crowd", lens="none", depth_scale="recorded")
     from jaxvo.config import TrackConfig
     from jaxvo.evaluation.metrics import ate
