@@ -40,14 +40,14 @@ def test_trajectory_header_round_trip_reproduces_the_file_bitwise(tmp_path):
     seq = tmp_path / "seq"
     generate("seq1", seq, frames=4, seed=3, camera=DEFAULT.at_level(2))
     first = tmp_path / "first.txt"
-    args = ["run", str(seq), "--out", str(first), "--method", "huber", "--seed", "7", "--thresh-lum", "21.5",
+    args = ["run", str(seq), "--out", str(first), "--method", "classic", "--seed", "7", "--thresh-lum", "21.5",
             "--keyframe-gap", "2", "--max-frames", "3", "--start", "1", "--no-progress"]
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 0, r.output
     head = [ln for ln in first.read_text().splitlines() if ln.startswith("#")]
     assert head[0].startswith(f"# jaxvo {jaxvo.__version__}")
     s = read_run_settings(first)
-    assert s.seed == 7 and s.config["method"] == "huber" and s.config["thresh_lum"] == 21.5
+    assert s.seed == 7 and s.config["method"] == "classic" and s.config["thresh_lum"] == 21.5
     assert s.track["max_gap"] == 2 and s.sequence["start"] == 1 and s.sequence["frames"] == 3
 
     again = tmp_path / "again.txt"

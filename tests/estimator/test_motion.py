@@ -127,16 +127,6 @@ def test_ransac_on_coarse_levels_only(dynamic_pair):
     # the paper's algorithm (ransac_finest=0; the program the --paper runs of test_bitwise compile)
     every = estimate_motion(a.frame(), b.frame(), CAM, Config.paper(), jax.random.key(0))
     assert Config.paper().ransac_finest == 0 and np.all(np.asarray(every.hypotheses) > 0)
-    # the default scores the pose carried up from level 2 beside the plain fit of level 1, which
-    # a mover can drag away: with level 1's refinement on one pixel per 2x2 tile (the tiles
-    # RANSAC had before) and hypotheses ranked by pixel count the plain fit alone ("refined")
-    # ends 14.8 mm off, both candidates 2.2 mm; with the default tiles all three candidate modes
-    # end under 1.6 mm on this pair, and with the default's surface-weighted ranking
-    # (score_depth_power 2) the plain fit alone ends 1.0 mm off
-    fine = Config(blocks=(4, 2, 1, 1), score_depth_power=0.0)
-    both = _errors(estimate_motion(a.frame(), b.frame(), CAM, fine, jax.random.key(0)).T_cur_ref)[0]
-    dragged = estimate_motion(a.frame(), b.frame(), CAM, fine.replace(prior_candidate="refined"), jax.random.key(0))
-    assert both < 5.0 and _errors(dragged.T_cur_ref)[0] > 2 * both, (_errors(dragged.T_cur_ref), both)
     with pytest.raises(ValueError, match="ransac_finest"):
         Config(ransac_finest=-1).validate()
 
@@ -278,7 +268,7 @@ def test_vmap_over_threshold_equals_separate_calls(dynamic_pair):
     a, b = dynamic_pair
     small = [Frame(np.asarray(f.intensity).reshape(120, 4, 160, 4).mean((1, 3)).astype(np.float32),
                    np.asarray(f.depth)[::4, ::4].copy()) for f in (a, b)]
-    cfg = Config(method="ransac", num_levels=2)
+    cfg = Config()   # two levels at 160x120: the program of the default estimate at this size
     values = jnp.linspace(10.0, 45.0, 8)
     key = jax.random.key(3)
     batched = jax.vmap(lambda t: estimate_motion(small[0], small[1], cam, cfg.replace(thresh_lum=t), key))(values)

@@ -29,7 +29,7 @@ def test_ate_and_frame_rpe_match_evo(bonn_crowd, tmp_path):
 
     est, gt = tmp_path / "est.txt", tmp_path / "gt.txt"
     r = CliRunner().invoke(main, ["run", str(bonn_crowd), "--max-frames", "8", "--method", "classic",
-                                  "--finest-level", "2", "--out", str(est), "--no-progress"])
+                                  "--out", str(est), "--no-progress"])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(main, ["gt", str(bonn_crowd), "-o", str(gt)])
     assert r.exit_code == 0, r.output
