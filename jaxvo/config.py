@@ -82,6 +82,10 @@ class Config:
     max_hypotheses: Annotated[int, integer(1), STATIC] = 64
     #: Hypotheses solved together (vmapped) between early-exit checks.
     batch_size: Annotated[int, integer(1), STATIC] = 8
+    #: Batches fitted in one vmapped call, the early exit still tested after each in turn: the
+    #: same estimate as one batch per call, in fewer, larger programs (5 x 8 covers k = 37).
+    #: docs/decisions/hypothesis-count.md.
+    batches_per_trip: Annotated[int, integer(1), STATIC] = 5
     #: Pyramid levels, 1-16; None halves down to about 80x60 (4 levels for 640x480).
     #: docs/decisions/pyramid.md.
     num_levels: Annotated[Optional[int], integer(1, 16, none_means="halve down to about 80x60"), STATIC] = None

@@ -209,7 +209,8 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
                               hypothesis_iterations=config.hypothesis_iterations,
                               depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
                               scoring=config.scoring, depth_power=config.score_depth_power, offset=offset,
-                              table=table, T_other=T_carried, adaptive=config.adaptive_hypotheses)
+                              table=table, T_other=T_carried, adaptive=config.adaptive_hypotheses,
+                              batches_per_trip=config.batches_per_trip)
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)

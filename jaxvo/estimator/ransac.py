@@ -4,7 +4,9 @@ One call of :func:`ransac_level` runs, for one pyramid level:
 
 1. k = ceil(log(1 - p) / log(1 - (1 - w)^n)) hypotheses (37 for p = 0.99,
    w = 0.3, n = 6), computed in batches of ``batch_size`` inside a
-   ``lax.while_loop`` so that the loop can stop early;
+   ``lax.while_loop`` so that the loop can stop early; ``batches_per_trip`` batches are
+   fitted in one vmapped call per trip (fewer, larger kernels), the stop still tested after
+   each batch in turn;
 2. each hypothesis: n random reference pixels with valid depth, each with its
    (2r+1)^2 neighbourhood (54 pixels for n = 6, r = 1), and the weighted
    Gauss-Newton/LM solve of the photometric least squares on those pixels
@@ -23,7 +25,7 @@ The initial pose itself (the previous level's result) is scored first as
 hypothesis zero: on a static scene it usually passes the early exit at once,
 and it is never worse to keep the best of it and the sampled ones.
 All shapes are static: k may be a traced value (so p and w can be swept with
-``jax.vmap``); only ``max_hypotheses`` and ``batch_size`` fix array sizes.
+``jax.vmap``); only ``max_hypotheses``, ``batch_size`` and ``batches_per_trip`` fix array sizes.
 """
 from __future__ import annotations
 
@@ -181,7 +183,7 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
                  p, w, thresh_lum, thresh_depth, early_exit_ratio, n: int, radius: int,
                  max_hypotheses: int, batch_size: int, hypothesis_iterations: int,
                  depth_weight=None, scoring: str = "count", depth_power=0.0, table=None, offset=0.0,
-                 T_other=None, adaptive: bool = False) -> RansacResult:
+                 T_other=None, adaptive: bool = False, batches_per_trip: int = 1) -> RansacResult:
     """Best pose hypothesis for one level; see the module docstring.
 
     T_init: (4, 4) T_cur_ref to start every hypothesis from. score_ref: the
@@ -203,7 +205,10 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     optional further (4, 4) candidate, scored beside T_init before any hypothesis (the pose a
     plain fit started from, which a moving object may have dragged T_init away from).
     adaptive: also stop once the batches drawn reach p for w = 1 - the best inlier ratio so far
-    (``Config.adaptive_hypotheses``).
+    (``Config.adaptive_hypotheses``). batches_per_trip: batches fitted in one vmapped call per
+    trip of the loop (``Config.batches_per_trip``); the stopping test still runs after each batch,
+    in order, and a batch after the stop does not count, so the result is that of one batch per trip
+    (the same draws: batch b's samples come from ``fold_in(key, b)`` either way).
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
@@ -233,15 +238,9 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         k_seen = jnp.maximum(_draws(p, jnp.clip(best_count / n_ref, 0.0, 1.0) ** n), 1.0)
         return (b * batch_size < jnp.minimum(k, k_seen)) & ~done
 
-    def body(state):
-        # named scopes: the stages in the compiled program's metadata (experiments/kernel_profile.py)
+    def take(state, Ts, quality, counts, surfaces):
+        """The state after batch b = state[0], whose poses and scores are given."""
         b, T_best, best, best_count, best_surface, evaluated = state
-        with jax.named_scope("ransac_sampling"):
-            pu, pv = sample_patches(jax.random.fold_in(key, b), ref_level, n, batch_size, radius, table)
-        with jax.named_scope("ransac_hypotheses"):
-            Ts = jax.vmap(hypothesis)(pu, pv)
-        with jax.named_scope("ransac_scoring"):
-            quality, counts, surfaces = jax.vmap(score)(Ts)
         idx = b * batch_size + jnp.arange(batch_size)
         quality = jnp.where(idx < k, quality, -jnp.inf)
         j = jnp.argmax(quality)
@@ -252,6 +251,29 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         best_surface = jnp.where(better, surfaces[j], best_surface)
         evaluated = evaluated + jnp.sum(idx < k)
         return b + 1, T_best, best, best_count, best_surface, evaluated
+
+    def body(state):
+        # named scopes: the stages in the compiled program's metadata (experiments/kernel_profile.py)
+        b = state[0]
+        with jax.named_scope("ransac_sampling"):
+            draws = [sample_patches(jax.random.fold_in(key, b + i), ref_level, n, batch_size, radius, table)
+                     for i in range(batches_per_trip)]
+            pu = jnp.concatenate([d[0] for d in draws])
+            pv = jnp.concatenate([d[1] for d in draws])
+        with jax.named_scope("ransac_hypotheses"):
+            Ts = jax.vmap(hypothesis)(pu, pv)
+        with jax.named_scope("ransac_scoring"):
+            quality, counts, surfaces = jax.vmap(score)(Ts)
+        # the batches in order, each only while the loop's test would still have let it run: the
+        # stop after any one of them is the stop of one batch per trip
+        for i in range(batches_per_trip):
+            part = slice(i * batch_size, (i + 1) * batch_size)
+            after = take(state, Ts[part], quality[part], counts[part], surfaces[part])
+            state = after if i == 0 else jax.tree_util.tree_map(
+                lambda new, old: jnp.where(go, new, old), after, state)
+            if i + 1 < batches_per_trip:
+                go = cond(state)
+        return state
 
     with jax.named_scope("ransac_sampling"):
         table = sampling_table(ref_level, radius) if table is None else table  # once per level, not per batch

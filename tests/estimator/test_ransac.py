@@ -363,3 +363,33 @@ def test_stacked_padded_level_samples_and_warps_as_the_level_itself():
     for f in (photometric_terms, lambda *a: rgbd_terms(*a, 600.0)):
         for x, y in zip(f(T, pts, small, cam), f(T, pts, levels[2], cam)):
             np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-4)
+
+
+def test_batches_per_trip_gives_the_estimate_of_one_batch_per_trip(level_pair):
+    """Several batches fitted in one vmapped call (``batches_per_trip``) still stop after the batch
+    where one batch per trip stops: the same pose, inlier ratio and hypothesis count, whether the
+    stop is the early exit in the middle of a trip, the count k, or the adaptive count."""
+    ref, cur, pts = level_pair
+    key = jax.random.key(5)
+
+    @functools.partial(jax.jit, static_argnames=("adaptive", "trip"))
+    def run(T_init, thresh_lum, exit_ratio, adaptive, trip):
+        return ransac_level(T_init, ref, cur, CAM, pts, key, p=0.99, w=0.3, thresh_lum=thresh_lum,
+                            thresh_depth=0.05, early_exit_ratio=exit_ratio, n=6, radius=1, max_hypotheses=64,
+                            batch_size=4, hypothesis_iterations=8, adaptive=adaptive, batches_per_trip=trip)
+
+    near = jnp.asarray(G.exp(np.array([0.0, 0.0, 0.0, 0.01, 0.0, 0.0])) @ T_TRUE, jnp.float32)
+    far = jnp.asarray(G.exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])), jnp.float32)
+    counts = set()
+    for T_init, thresh, ratio, adaptive in [(jnp.eye(4), 30.0, 0.9, False), (near, 3.0, 0.5, False),
+                                            (jnp.eye(4), 3.0, 0.9, False), (far, 1.0, 0.9, True),
+                                            (jnp.asarray(T_TRUE, jnp.float32), 30.0, 1.0, True)]:
+        one = run(T_init, thresh, ratio, adaptive, 1)
+        counts.add(int(one.hypotheses))
+        for trip in (3, 10):  # 10 x 4 covers k = 37 in one trip
+            many = run(T_init, thresh, ratio, adaptive, trip)
+            assert int(many.hypotheses) == int(one.hypotheses), (thresh, ratio, adaptive, trip)
+            assert float(many.inlier_ratio) == pytest.approx(float(one.inlier_ratio), abs=1e-6)
+            np.testing.assert_allclose(np.asarray(many.T), np.asarray(one.T), atol=1e-5)
+    # the cases stop at different batches, some inside a trip of 3 (not a multiple of 12)
+    assert len(counts) >= 3 and any(c % 12 and c < 37 for c in counts), counts
