@@ -235,8 +235,8 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     its own jitted call on the same inputs (the pose carried from level to level as in the
     estimator, so the iteration counts are the real ones): ``points`` (the reference points
     and the scoring subgrid), ``prior`` (the plain LM fit that makes the first candidate),
-    ``hypotheses`` (one vmapped batch of ``batch_size`` patch fits x the batches the real
-    estimate ran at that level), ``scoring`` (likewise), ``ransac other`` (the whole
+    ``hypotheses`` (one vmapped trip of ``batch_size`` x ``batches_per_trip`` patch fits x the
+    trips the real estimate ran at that level), ``scoring`` (likewise), ``ransac other`` (the whole
     ``ransac_level`` call minus the two: sampling and loop), ``refinement`` (the consensus
     refinement), ``solve`` (classic / huber's level solve). ``pyramid``: both frames' pyramids;
     ``host transfer``: the two frames to the device and the result back; ``rest``: the
@@ -276,10 +276,11 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                                 thresh_depth=cfg.thresh_depth, early_exit_ratio=cfg.early_exit_ratio,
                                 n=cfg.n_points, radius=cfg.patch_radius, max_hypotheses=cfg.max_hypotheses,
                                 batch_size=cfg.batch_size, hypothesis_iterations=cfg.hypothesis_iterations,
-                                depth_weight=hdw, scoring=cfg.scoring, depth_power=cfg.score_depth_power).T
+                                depth_weight=hdw, scoring=cfg.scoring, depth_power=cfg.score_depth_power,
+                                batches_per_trip=cfg.batches_per_trip).T
 
         def sample(rl, kk, lc):  # lc unused: every stage takes the camera
-            return sample_patches(kk, rl, cfg.n_points, cfg.batch_size, cfg.patch_radius)
+            return sample_patches(kk, rl, cfg.n_points, cfg.batch_size * cfg.batches_per_trip, cfg.patch_radius)
 
         def fit(T, rl, cl, pu, pv, lc):
             return jax.vmap(lambda a, b: fit_hypothesis(T, rl, cl, lc, a, b, cfg.hypothesis_iterations, hdw))(pu, pv)
@@ -354,10 +355,11 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
                     pu, pv = f["sample"](rl, lkey)
                     t_fit = _timed(f["fit"], T, rl, cl, pu, pv, repeats=repeats)
                     t_score = _timed(f["score"], f["fit"](T, rl, cl, pu, pv), sp, cl, repeats=repeats)
-                    batches = int(np.ceil(hyps[lv] / cfg.batch_size))
-                    add(lv, "hypotheses", batches * t_fit)
-                    add(lv, "scoring", batches * t_score)
-                    add(lv, "ransac other", max(t_rs - batches * (t_fit + t_score), 0.0))
+                    # a trip fits every slot of its batches, the ones after the stop too
+                    trips = int(np.ceil(hyps[lv] / (cfg.batch_size * cfg.batches_per_trip)))
+                    add(lv, "hypotheses", trips * t_fit)
+                    add(lv, "scoring", trips * t_score)
+                    add(lv, "ransac other", max(t_rs - trips * (t_fit + t_score), 0.0))
                     T = f["ransac"](T, rl, cl, sp, lkey)
                 add(lv, "refinement", _timed(f["refine"], T, pts, cl, repeats=repeats))
                 T = f["refine"](T, pts, cl)

@@ -311,7 +311,8 @@ def part_rows(seq: Path) -> List[dict]:
                                 early_exit_ratio=c.early_exit_ratio, n=c.n_points, radius=c.patch_radius,
                                 max_hypotheses=c.max_hypotheses, batch_size=c.batch_size,
                                 hypothesis_iterations=c.hypothesis_iterations, depth_weight=c.depth_weight,
-                                scoring=c.scoring, depth_power=c.score_depth_power).T
+                                scoring=c.scoring, depth_power=c.score_depth_power,
+                                batches_per_trip=c.batches_per_trip).T
 
         def refinement(i, d, i2, d2, T):
             ref, cur, pts = prepared(i, d, i2, d2)
