@@ -211,6 +211,8 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
     (the same draws: batch b's samples come from ``fold_in(key, b)`` either way).
     """
     k = jnp.minimum(num_hypotheses(p, w, n), max_hypotheses)
+    # no trip needs more batches than the cap holds (k <= max_hypotheses): the slots past it never count
+    batches_per_trip = max(1, min(batches_per_trip, -(-max_hypotheses // batch_size)))
     # scoring pixels count by their static-trust weight (1 everywhere without a prior)
     n_ref = jnp.maximum(jnp.sum(score_ref.weight), 1.0)
     # the same times z^depth_power: the share of the scene surface the ranking measures
