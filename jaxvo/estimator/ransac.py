@@ -258,10 +258,11 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         # named scopes: the stages in the compiled program's metadata (experiments/kernel_profile.py)
         b = state[0]
         with jax.named_scope("ransac_sampling"):
-            draws = [sample_patches(jax.random.fold_in(key, b + i), ref_level, n, batch_size, radius, table)
-                     for i in range(batches_per_trip)]
-            pu = jnp.concatenate([d[0] for d in draws])
-            pv = jnp.concatenate([d[1] for d in draws])
+            # the trip's batches drawn under one vmap over their keys: the numbers of one draw per
+            # key (a counter-based generator), in one copy of the sampling code instead of one per batch
+            keys = jax.vmap(lambda i: jax.random.fold_in(key, b + i))(jnp.arange(batches_per_trip))
+            pu, pv = jax.vmap(lambda k_: sample_patches(k_, ref_level, n, batch_size, radius, table))(keys)
+            pu, pv = pu.reshape(-1, pu.shape[-1]), pv.reshape(-1, pv.shape[-1])
         with jax.named_scope("ransac_hypotheses"):
             Ts = jax.vmap(hypothesis)(pu, pv)
         with jax.named_scope("ransac_scoring"):
