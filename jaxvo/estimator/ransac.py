@@ -100,7 +100,9 @@ def _nth_true(table: SamplingTable, j):
     """Row-major flat index (in the table's padded width) of the (j+1)-th drawable pixel, for int32 j
     (any shape) in [0, total); the flat size of the table where there is none."""
     cw = table.ok.shape[1]
-    r = jnp.searchsorted(table.rows, j, side="right")
+    # "compare_all": the count of rows <= j, the same index as the default binary search over a
+    # sorted array, without its loop (fewer kernels to compile; the queries are a few hundred)
+    r = jnp.searchsorted(table.rows, j, side="right", method="compare_all")
     rc = jnp.minimum(r, table.rows.shape[0] - 1)
     j = j - (table.rows[rc] - table.chunks[rc].sum(-1))   # rank within the row
     run = jnp.cumsum(table.chunks[rc], axis=-1)            # (..., wc): 16-pixel chunks of the row
@@ -268,15 +270,13 @@ def ransac_level(T_init, ref_level: Level, cur_level: Level, camera: Camera, sco
         with jax.named_scope("ransac_scoring"):
             quality, counts, surfaces = jax.vmap(score)(Ts)
         # the batches in order, each only while the loop's test would still have let it run: the
-        # stop after any one of them is the stop of one batch per trip
-        for i in range(batches_per_trip):
-            part = slice(i * batch_size, (i + 1) * batch_size)
-            after = take(state, Ts[part], quality[part], counts[part], surfaces[part])
-            state = after if i == 0 else jax.tree_util.tree_map(
-                lambda new, old: jnp.where(go, new, old), after, state)
-            if i + 1 < batches_per_trip:
-                go = cond(state)
-        return state
+        # stop after any one of them is the stop of one batch per trip (a loop over the trip's
+        # batches, one copy of its code; the first always runs, as the while loop's test let it)
+        def one(i, state):
+            part = [jax.lax.dynamic_slice_in_dim(x, i * batch_size, batch_size) for x in (Ts, quality, counts, surfaces)]
+            go = (i == 0) | cond(state)
+            return jax.tree_util.tree_map(lambda new, old: jnp.where(go, new, old), take(state, *part), state)
+        return jax.lax.fori_loop(0, batches_per_trip, one, state)
 
     with jax.named_scope("ransac_sampling"):
         table = sampling_table(ref_level, radius) if table is None else table  # once per level, not per batch

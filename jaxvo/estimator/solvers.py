@@ -325,7 +325,8 @@ def robust_scale(r, valid, max_abs: float = 256.0, bins: int = 1024):
     hist = jnp.zeros(bins, jnp.float32).at[idx].add(valid.astype(jnp.float32))
     cdf = jnp.cumsum(hist)
     half = 0.5 * cdf[-1]
-    k = jnp.clip(jnp.searchsorted(cdf, half), 0, bins - 1)
+    # one query: the count of bins whose cdf is < half, without the binary search's loop
+    k = jnp.clip(jnp.searchsorted(cdf, half, method="compare_all"), 0, bins - 1)
     below = jnp.where(k > 0, cdf[jnp.maximum(k - 1, 0)], 0.0)
     frac = (half - below) / jnp.maximum(hist[k], 1.0)
     median = (k + jnp.clip(frac, 0.0, 1.0)) * width
