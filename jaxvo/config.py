@@ -295,6 +295,13 @@ class TrackConfig(NamedTuple):
     #: better and faster on the Bonn crowd, worse where a person moves fast and close) or
     #: "classic". docs/decisions/window.md.
     window_method: Annotated[str, choice("ransac", "huber", "classic")] = "ransac"
+    #: With window > 1 and RANSAC: the finest pyramid level on which a new keyframe's estimates
+    #: against the window's older keyframes run RANSAC (``Config.ransac_finest`` for them alone,
+    #: >= 0; finer levels refine from the pose carried up); None: as the other estimates. They
+    #: start from the chained pose, and RANSAC's finest level costs about a quarter of an
+    #: estimate: 2 is a lever for speed (a second estimator program to compile), not the default.
+    #: docs/decisions/window.md.
+    window_ransac_finest: Annotated[Optional[int], integer(0, none_means="as Config.ransac_finest")] = None
     #: With the segmentation (``segment``) and RANSAC: every estimate made without static weights
     #: (the calm mode's frame-to-frame estimates, and a new keyframe's estimates against calm
     #: keyframes) stops at the coarsest pyramid level at least this many pixels wide (>= 1; 640x480

@@ -98,6 +98,15 @@ def _with_outliers(config: Config, outliers: Optional[float]) -> Config:
     return config.replace(w=float(outliers) if isinstance(w, (int, float)) else np.asarray(outliers, np.asarray(w).dtype))
 
 
+def _window_levels(config: Config, ransac_finest: Optional[int]) -> Config:
+    """The Config of a new keyframe's estimates against the window's older keyframes, as far as
+    its levels go: ``config`` with ``Config.ransac_finest`` = ``ransac_finest``
+    (``TrackConfig.window_ransac_finest``) where it is RANSAC's and that is set, else ``config``."""
+    if config.method != "ransac" or ransac_finest is None or ransac_finest == config.ransac_finest:
+        return config
+    return config.replace(ransac_finest=int(ransac_finest))
+
+
 def _window_method_config(config: Config, method: str) -> Config:
     """The Config of a new keyframe's estimates against the window's older keyframes that carry
     static weights: ``config`` with ``Config.method`` = ``method`` (``TrackConfig.window_method``)
@@ -206,9 +215,11 @@ class Odometry:
         #: ``TrackConfig.outliers`` (where not None) and the adaptive hypothesis count
         #: (``TrackConfig.adaptive``) where the segmentation is on.
         self.estimate_config = _tracking_config(self.config, self.policy)
-        # the estimates against the window's older keyframes (TrackConfig.window_outliers), and
-        # those of them against keyframes with static weights (TrackConfig.window_method)
-        self._window_config = _with_outliers(self.estimate_config, self.policy.window_outliers)
+        # the estimates against the window's older keyframes (TrackConfig.window_outliers,
+        # window_ransac_finest), and those of them against keyframes with static weights
+        # (TrackConfig.window_method)
+        self._window_config = _window_levels(_with_outliers(self.estimate_config, self.policy.window_outliers),
+                                             self.policy.window_ransac_finest)
         self._window_weighted_config = _window_method_config(self._window_config, self.policy.window_method)
         # the estimates without static weights (TrackConfig.calm_min_width)
         self._calm_config = _calm_config(self.estimate_config, self.policy, camera)
@@ -499,8 +510,9 @@ class Odometry:
     def config_for(self, purpose: str, weights) -> Config:
         """The Config of an estimate made for ``purpose`` (see :attr:`timings`) with ``weights``
         (a reference's static weights, or None): :attr:`estimate_config`, for "window" with
-        ``TrackConfig.window_outliers`` as ``Config.w`` and, with weights, ``TrackConfig.window_method``
-        as its method; without weights (the calm mode) at ``TrackConfig.calm_min_width``'s level."""
+        ``TrackConfig.window_outliers`` as ``Config.w``, ``TrackConfig.window_ransac_finest`` as
+        ``Config.ransac_finest`` and, with weights, ``TrackConfig.window_method`` as its method;
+        without weights (the calm mode) at ``TrackConfig.calm_min_width``'s level."""
         if purpose == "window":
             return self._window_calm_config if weights is None else self._window_weighted_config
         return self._calm_config if weights is None else self.estimate_config

@@ -230,6 +230,45 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
     assert sum(drawn[(0.2, None, "track")]) < sum(drawn[(None, None, "track")])
 
 
+def test_window_ransac_finest_sets_the_window_estimates_ransac_levels_only(crowd):
+    """TrackConfig.window_ransac_finest is the Config.ransac_finest of a new keyframe's estimates
+    against the window's older keyframes alone (None: as the other estimates). The crowd's
+    160x120 frames have 2 pyramid levels: with 2 those estimates run RANSAC on none (no hypothesis
+    drawn) while the estimates against the reference still draw theirs; the window's program is
+    traced once, not per frame or per window update."""
+    seq, frames = crowd
+    drawn = {}
+
+    class Recording(Odometry):
+        def _estimate(self, purpose, *args):
+            est = super()._estimate(purpose, *args)
+            drawn.setdefault((self.policy.window_ransac_finest, purpose), []).append(
+                int(np.asarray(est.hypotheses).sum()))
+            return est
+
+    def run(policy):
+        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
+        for f in frames[:40]:
+            odo.add(f)
+        return odo
+
+    assert TrackConfig().window_ransac_finest is None
+    default = Odometry(CAM)
+    assert default._window_config is default.estimate_config
+    same = Odometry(CAM, policy=TrackConfig(window_ransac_finest=Config().ransac_finest))
+    assert same._window_config is same.estimate_config
+    odo = run(TrackConfig(window_ransac_finest=2))
+    assert odo._window_config.ransac_finest == 2 and odo.estimate_config.ransac_finest == Config().ransac_finest
+    assert odo._window_weighted_config.ransac_finest == odo._window_calm_config.ransac_finest == 2
+    assert drawn[(2, "window")] and max(drawn[(2, "window")]) == 0
+    assert max(drawn[(2, "track")]) > 0
+    traces = trace_count()
+    np.testing.assert_array_equal(np.stack(run(TrackConfig(window_ransac_finest=2)).poses), np.stack(odo.poses))
+    assert trace_count() == traces
+    with pytest.raises(ValueError, match="window_ransac_finest"):
+        TrackConfig(window_ransac_finest=-1).validate()
+
+
 def test_window_method_estimates_weighted_keyframes_with_huber_and_calm_ones_with_ransac(crowd, monkeypatch):
     """TrackConfig.window_method (default "ransac": every estimate RANSAC's) is the method of a new
     keyframe's estimates against the window's older keyframes that carry static weights; with
