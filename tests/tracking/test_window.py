@@ -186,6 +186,22 @@ def test_adaptive_sets_the_tracking_estimates_count_where_it_segments():
     assert both.estimate_config.w == 0.2 and both.estimate_config.adaptive_hypotheses
 
 
+def _hypotheses_drawn(frames, policy, drawn, fields):
+    """The Odometry of the first 40 of ``frames`` with ``policy`` (key 3), each estimate's RANSAC
+    hypotheses (summed over its levels) appended to ``drawn[(policy's fields..., purpose)]``."""
+    class Recording(Odometry):
+        def _estimate(self, purpose, *args):
+            est = super()._estimate(purpose, *args)
+            key = tuple(getattr(self.policy, f) for f in fields) + (purpose,)
+            drawn.setdefault(key, []).append(int(np.asarray(est.hypotheses).sum()))
+            return est
+
+    odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
+    for f in frames[:40]:
+        odo.add(f)
+    return odo
+
+
 def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crowd):
     """TrackConfig.outliers is the Config.w of every estimate of the tracking with the segmentation
     (default None: Config.w), TrackConfig.window_outliers that of the estimates against the
@@ -194,18 +210,8 @@ def test_outliers_set_the_tracking_estimates_hypotheses_in_the_same_program(crow
     seq, frames = crowd
     drawn = {}
 
-    class Recording(Odometry):
-        def _estimate(self, purpose, *args):
-            est = super()._estimate(purpose, *args)
-            key = (self.policy.outliers, self.policy.window_outliers, purpose)
-            drawn.setdefault(key, []).append(int(np.asarray(est.hypotheses).sum()))
-            return est
-
     def run(policy):
-        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
-        for f in frames[:40]:
-            odo.add(f)
-        return odo
+        return _hypotheses_drawn(frames, policy, drawn, ("outliers", "window_outliers"))
 
     plain = run(TrackConfig(outliers=0.2))
     assert plain.config.w == Config().w == 0.3 and plain.estimate_config.w == 0.2
@@ -239,18 +245,8 @@ def test_window_ransac_finest_sets_the_window_estimates_ransac_levels_only(crowd
     seq, frames = crowd
     drawn = {}
 
-    class Recording(Odometry):
-        def _estimate(self, purpose, *args):
-            est = super()._estimate(purpose, *args)
-            drawn.setdefault((self.policy.window_ransac_finest, purpose), []).append(
-                int(np.asarray(est.hypotheses).sum()))
-            return est
-
     def run(policy):
-        odo = Recording(CAM, key=jax.random.PRNGKey(3), policy=policy)
-        for f in frames[:40]:
-            odo.add(f)
-        return odo
+        return _hypotheses_drawn(frames, policy, drawn, ("window_ransac_finest",))
 
     assert TrackConfig().window_ransac_finest is None
     default = Odometry(CAM)
