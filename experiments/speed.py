@@ -244,7 +244,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
     effects of running the stages as separate programs).
     """
     from jaxvo.estimator.inputs import num_levels
-    from jaxvo.estimator.levels import level_block
+    from jaxvo.estimator.levels import level_block, ransac_options
     from jaxvo.estimator.pyramid import build_pyramid
     from jaxvo.estimator.ransac import fit_hypothesis, inliers, ransac_level, sample_patches, score_pose, score_weights
     from jaxvo.estimator.residuals import reference_points, residuals, select_points
@@ -252,7 +252,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
 
     cfg = config
     dw = cfg.depth_weight if cfg.terms == "rgbd" else None
-    hdw = cfg.depth_weight if cfg.hypothesis_terms == "rgbd" else None
+    hdw = ransac_options(cfg)["depth_weight"]   # the hypotheses' depth term, as the estimator fits them
 
     def stage_functions(stride, blk):
         """The jitted stages of one level (the camera ``lc`` an argument), built once per level so each
@@ -272,12 +272,7 @@ def time_stages(sets, config: Config, n_pairs: int, repeats: int, key):
             return solve_pose_small(T, pts, cl, lc, pts.weight, cfg.max_iterations, depth_weight=dw).T
 
         def ransac(T, rl, cl, sp, kk, lc):
-            return ransac_level(T, rl, cl, lc, sp, kk, p=cfg.p, w=cfg.w, thresh_lum=cfg.thresh_lum,
-                                thresh_depth=cfg.thresh_depth, early_exit_ratio=cfg.early_exit_ratio,
-                                n=cfg.n_points, radius=cfg.patch_radius, max_hypotheses=cfg.max_hypotheses,
-                                batch_size=cfg.batch_size, hypothesis_iterations=cfg.hypothesis_iterations,
-                                depth_weight=hdw, scoring=cfg.scoring, depth_power=cfg.score_depth_power,
-                                batches_per_trip=cfg.batches_per_trip).T
+            return ransac_level(T, rl, cl, lc, sp, kk, **ransac_options(cfg)).T
 
         def sample(rl, kk, lc):  # lc unused: every stage takes the camera
             return sample_patches(kk, rl, cfg.n_points, cfg.batch_size * cfg.batches_per_trip, cfg.patch_radius)

@@ -282,6 +282,7 @@ def part_rows(seq: Path) -> List[dict]:
 
     from jaxvo.config import Config
     from jaxvo.estimator.pyramid import build_pyramid
+    from jaxvo.estimator.levels import ransac_options
     from jaxvo.estimator.ransac import ransac_level
     from jaxvo.estimator.residuals import reference_points, select_points
     from jaxvo.estimator.solvers import irls, solve_pose_small
@@ -306,13 +307,8 @@ def part_rows(seq: Path) -> List[dict]:
         def hypotheses(i, d, i2, d2, T):
             ref, cur, _ = prepared(i, d, i2, d2)
             stride = max(1, int(np.ceil(np.sqrt(h * w / c.max_score_pixels))))
-            return ransac_level(T, ref, cur, cam, reference_points(ref, cam, stride), jax.random.key(0), p=c.p, w=c.w,
-                                thresh_lum=c.thresh_lum, thresh_depth=c.thresh_depth,
-                                early_exit_ratio=c.early_exit_ratio, n=c.n_points, radius=c.patch_radius,
-                                max_hypotheses=c.max_hypotheses, batch_size=c.batch_size,
-                                hypothesis_iterations=c.hypothesis_iterations, depth_weight=c.depth_weight,
-                                scoring=c.scoring, depth_power=c.score_depth_power,
-                                batches_per_trip=c.batches_per_trip).T
+            return ransac_level(T, ref, cur, cam, reference_points(ref, cam, stride), jax.random.key(0),
+                                **ransac_options(c)).T
 
         def refinement(i, d, i2, d2, T):
             ref, cur, pts = prepared(i, d, i2, d2)

@@ -29,7 +29,8 @@ from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import irls, jit, solve_pose, solve_pose_small
 from jaxvo.estimator.trust import final_counts, final_residuals, trust_stats, trusted
 
-__all__ = ["depth_gradient_levels", "estimate_arrays", "estimate_arrays_jit", "level_block", "reads_depth_gradients",
+__all__ = ["depth_gradient_levels", "estimate_arrays", "estimate_arrays_jit", "level_block", "ransac_options",
+           "reads_depth_gradients",
            "trace_count"]
 
 
@@ -46,6 +47,20 @@ def level_block(config: Config, level: int) -> int:
     ``Config.blocks[level]``, 1 past its end."""
     blocks = config.blocks
     return int(blocks[level]) if level < len(blocks) else 1
+
+
+def ransac_options(config: Config) -> dict:
+    """The keyword arguments of :func:`jaxvo.estimator.ransac.ransac_level` that ``config`` sets
+    (the hypothesis count, thresholds, batches, the hypotheses' residual and their scoring): the
+    estimator's, and those of a caller that runs one level's RANSAC alone (experiments' stage
+    timings)."""
+    return dict(p=config.p, w=config.w, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
+                early_exit_ratio=config.early_exit_ratio, n=config.n_points, radius=config.patch_radius,
+                max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
+                hypothesis_iterations=config.hypothesis_iterations,
+                depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
+                scoring=config.scoring, depth_power=config.score_depth_power, adaptive=config.adaptive_hypotheses,
+                batches_per_trip=config.batches_per_trip)
 
 
 def _score_stride(level, config: Config) -> int:
@@ -200,17 +215,8 @@ def _level_step(config: Config, key, dw, ransac: bool, stacks, carry, xs):
             with jax.named_scope("ransac_sampling"):
                 table = sampling_table(_gated(level_slice(ref_l), cur_l, cam, T, config.sample_gate),
                                        config.patch_radius)
-            rs = ransac_level(T, ref_l, cur_l, cam, score_pts,
-                              jax.random.fold_in(key, level),
-                              p=config.p, w=config.w, thresh_lum=config.thresh_lum,
-                              thresh_depth=config.thresh_depth, early_exit_ratio=config.early_exit_ratio,
-                              n=config.n_points, radius=config.patch_radius,
-                              max_hypotheses=config.max_hypotheses, batch_size=config.batch_size,
-                              hypothesis_iterations=config.hypothesis_iterations,
-                              depth_weight=config.depth_weight if config.hypothesis_terms == "rgbd" else None,
-                              scoring=config.scoring, depth_power=config.score_depth_power, offset=offset,
-                              table=table, T_other=T_carried, adaptive=config.adaptive_hypotheses,
-                              batches_per_trip=config.batches_per_trip)
+            rs = ransac_level(T, ref_l, cur_l, cam, score_pts, jax.random.fold_in(key, level), offset=offset,
+                              table=table, T_other=T_carried, **ransac_options(config))
             hyps = rs.hypotheses
             T = rs.T
         iters = jnp.int32(0)
