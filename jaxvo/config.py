@@ -326,6 +326,11 @@ class TrackConfig(NamedTuple):
     #: move, and lost on some sequences that start with people in view.
     #: docs/decisions/hypothesis-count.md.
     adaptive: Annotated[bool, flag()] = False
+    #: True: a frame that becomes the reference and records when its colour and its depth image
+    #: were taken (``Frame.time``, ``Frame.depth_time``; the sequence readers set both) has its
+    #: depth moved to the colour image's time (:mod:`jaxvo.tracking.depth_time`), with the camera's
+    #: motion between it and the posed frame next to it. A lever, off: docs/decisions/depth-time.md.
+    retime_depth: Annotated[bool, flag()] = False
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

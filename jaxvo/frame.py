@@ -54,10 +54,17 @@ class Frame(NamedTuple):
     mask: optional (H, W) bool, True where the pixel may be used (as OpenCV's
     ``OdometryFrame`` mask, e.g. False on a detector's people); None = every pixel.
     It applies where the frame is the reference of an estimate.
+
+    time, depth_time: optional capture times (seconds, one clock) of the colour image and of the
+    depth image, which a Kinect-class sensor takes apart (up to half a frame); the sequence
+    readers set both from the recording's timestamps. The odometry can move the depth to the
+    colour image's time (``TrackConfig.retime_depth``); None (or equal times): taken together.
     """
     intensity: np.ndarray
     depth: np.ndarray
     mask: Optional[np.ndarray] = None
+    time: Optional[float] = None
+    depth_time: Optional[float] = None
 
     @property
     def shape(self):
@@ -196,7 +203,7 @@ def undistort(frame: Frame, camera, lens) -> Frame:
     intensity = _remap(np.asarray(frame.intensity, np.float32), maps, True)
     depth = _remap(np.asarray(frame.depth, np.float32), maps, False)
     mask = None if frame.mask is None else _remap(np.asarray(frame.mask).astype(np.uint8), maps, False) != 0
-    return Frame(intensity, depth, mask)
+    return frame._replace(intensity=intensity, depth=depth, mask=mask)
 
 
 def undistort_images(color, depth, camera, lens):

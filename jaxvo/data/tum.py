@@ -245,7 +245,7 @@ class TumSequence:
     def frame(self, i: int) -> Frame:
         """Read and return frame ``i`` (negative indices allowed) as a :class:`jaxvo.frame.Frame`:
         intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid), mask (H, W) bool
-        from ``mask_dir`` or None.
+        from ``mask_dir`` or None, time and depth_time the rgb.txt and depth.txt timestamps.
 
         Raises DatasetError naming the file for undecodable images, non-16-bit depth, size
         mismatches (also with the camera's width/height) and depth without any valid pixel.
@@ -264,7 +264,9 @@ class TumSequence:
                             mask=mask)
         except ValueError as e:
             raise DatasetError(str(e)) from None
-        fr = undistort(fr, self.camera, self.lens)
+        # the capture times of both images, which the odometry may align (TrackConfig.retime_depth)
+        fr = undistort(fr, self.camera, self.lens)._replace(time=float(self.timestamps[i]),
+                                                           depth_time=float(self.depth_timestamps[i]))
         if not self._depth_checked:
             check_depth_scale(fr.depth, self.depth_scale, self.depth_paths[i], explicit=self._scale_given)
             self._depth_checked = True

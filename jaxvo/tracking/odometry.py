@@ -14,7 +14,7 @@ from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame
 from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, num_levels, \
     prepare_frame
-from jaxvo.tracking import segmentation, window
+from jaxvo.tracking import depth_time, segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
 class Track(NamedTuple):
@@ -244,6 +244,7 @@ class Odometry:
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
         self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
+        self._times: dict = {}          # frame index -> its colour image's time (Frame.time) or None
         #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
         #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
         #: (track: against the reference; retry; recover: against an older keyframe; window: a new
@@ -275,6 +276,7 @@ class Odometry:
         check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
         self._frames[j] = frame
+        self._times[j] = getattr(frame, "time", None)
         # its pyramid, which every estimate it takes part in reads, and which holds the segmentation's inputs
         start = time.perf_counter()
         self._pyramids[j] = prepare_frame(frame, self.camera, self.config, f"frame {j}")
@@ -655,6 +657,8 @@ class Odometry:
 
     def _set_reference(self, new: int, j: int) -> None:
         old = self._ref
+        if self.policy.retime_depth:
+            self._depth_at_colour_time(new)
         if old in self._window:   # its weights serve the estimates against it while it stays in the window
             self._key_trust[old] = (self.static_map.trust(tuple(self._frames[old].depth.shape)), self._calm)
         # a held frame (restart) has no pose of its own to refine and must not push keyframes out
@@ -665,6 +669,27 @@ class Odometry:
         self._ref = new
         self.static_map.new_reference(old, new, j, self.policy.history, self._chain_pose, self.valid,
                                       self.view_pose)
+
+    def _depth_at_colour_time(self, new: int) -> None:
+        """Frame ``new``, about to become the reference, with its depth moved to its colour image's
+        time (``TrackConfig.retime_depth``, :mod:`jaxvo.tracking.depth_time`): the camera then is
+        interpolated along the twist between its pose and the posed frame next to it on the side
+        of its depth's time (the one before it where there is none after it yet), and its pyramid
+        made anew; as it is where either capture time is unknown or they are the same."""
+        frame, n = self._frames[new], len(self.poses)
+        taken, depth_taken = self._times.get(new), getattr(frame, "depth_time", None)
+        if taken is None or depth_taken is None or float(depth_taken) == float(taken) or new < 1:
+            return
+        a, b = (new, new + 1) if depth_taken > taken and new + 1 < n else (new - 1, new)
+        if self._times.get(a) is None or self._times.get(b) is None:
+            return
+        T = depth_time.depth_motion(self.poses[a], self.poses[b], self._times[a], self._times[b], self.poses[new],
+                                    depth_taken)
+        if T is None:
+            return
+        frame = frame._replace(depth=depth_time.retimed_depth(frame.depth, T, self.camera))
+        self._frames[new] = frame
+        self._pyramids[new] = prepare_frame(frame, self.camera, self.config, f"frame {new}")
 
     def _windowed_anchor(self, new: int) -> np.ndarray:
         """The pose later frames chain from when ``new`` becomes the reference and joins the
