@@ -20,7 +20,6 @@ from __future__ import annotations
 import operator
 from typing import Optional
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -77,4 +76,3 @@ def retimed_depth(depth: np.ndarray, T_colour_depth: np.ndarray, camera: Camera)
     the camera sees it at its colour image's time, ``T_colour_depth`` apart (:func:`depth_motion`):
     (H, W) float32 on the host. One compiled program per image size."""
     return np.asarray(_RETIMED(np.asarray(depth, np.float32), np.asarray(T_colour_depth, np.float32), camera))
-

@@ -641,6 +641,8 @@ class Odometry:
             del self._info[old]
         for old in [i for i in self._key_trust if i not in self._window]:
             del self._key_trust[old]
+        for old in [i for i in self._times if i < self._ref]:   # a later reference is newer than this one
+            del self._times[old]
         self.static_map.forget(keep_depth)
         for d in (self._anchor, self._rel):   # estimates against the last references only
             for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap and i not in self._window]:
