@@ -235,10 +235,11 @@ def kernel_count(compiled) -> int:
 
 
 def augmented_sequence(real_dir, persons: int = 1, coverage: float = 0.3, seed: int = 0,
-                       max_frames: Optional[int] = None, cache_dir=None) -> Path:
+                       max_frames: Optional[int] = None, cache_dir=None, depth_time: bool = False) -> Path:
     """Dynamic augmentation of a real TUM sequence (``jaxvo.synthetic.augment``), cached.
 
-    The folder is ``<cache>/<real name>_aug_p<persons>_c<coverage>_s<seed>_n<frames>``;
+    The folder is ``<cache>/<real name>_aug_p<persons>_c<coverage>_s<seed>_n<frames>`` (``_dt``
+    after it with ``depth_time``: the depth images' persons at their own timestamps);
     keeping the real name as a prefix keeps the camera preset (freiburg1/2/3).
     It is regenerated only when missing (or incomplete).
     """
@@ -250,9 +251,10 @@ def augmented_sequence(real_dir, persons: int = 1, coverage: float = 0.3, seed: 
     if cache == CACHE and not gi.exists():
         gi.write_text("# generated data, not committed\n*\n")
     n = "all" if max_frames is None else str(int(max_frames))
-    out = cache / f"{real_dir.name}_aug_p{persons}_c{int(round(coverage * 100))}_s{seed}_n{n}"
+    out = cache / f"{real_dir.name}_aug_p{persons}_c{int(round(coverage * 100))}_s{seed}_n{n}{'_dt' if depth_time else ''}"
     if not (out / "info.json").is_file():
-        augment(real_dir, out, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames)
+        augment(real_dir, out, persons=persons, coverage=coverage, seed=seed, max_frames=max_frames,
+                depth_time=depth_time)
     return out
 
 

@@ -85,6 +85,9 @@ def parse_args(argv=None):
                     help="comma list of real TUM sequence folders to run too, each as its dynamic augmentation "
                          "(jaxvo.synthetic.augment: 2 persons, 30 %% coverage, the seed; real frames, real ground "
                          "truth, exact masks); 'tum' = every sequence under data_root()/tum")
+    ap.add_argument("--augment-depth-time", action="store_true",
+                    help="the augmentations' persons in each depth image rendered at its own timestamp and pose "
+                         "(as a sensor that takes depth and colour apart sees them), not at the colour image's")
     ap.add_argument("--policy", default=None,
                     help="JSON object of jaxvo.TrackConfig fields changed in the default's policy "
                          "(e.g. '{\"restart\": 9}')")
@@ -217,9 +220,10 @@ def end_drift(seq: TumSequence, poses) -> Dict[str, Optional[float]]:
 
 
 def sequence_jobs(sequences: Sequence[str], augment: Sequence[Path], seeds: Sequence[int], frames: int,
-                  size: str = "640x480", sensor: bool = True, cache=None) -> list:
+                  size: str = "640x480", sensor: bool = True, cache=None, depth_time: bool = False) -> list:
     """(name, seed, make, camera) per seed and sequence: the synthetic ``sequences`` and the dynamic
-    augmentations (2 persons, 30 % coverage) of the real ``augment`` folders; ``make()`` generates
+    augmentations (2 persons, 30 % coverage; ``depth_time``: the depth images' persons at their own
+    timestamps, ``jaxvo.synthetic.augment``) of the real ``augment`` folders; ``make()`` generates
     the sequence (cached) and returns its folder; camera: the intrinsics to read it with (None:
     the real sequence's preset)."""
     jobs = []
@@ -227,7 +231,8 @@ def sequence_jobs(sequences: Sequence[str], augment: Sequence[Path], seeds: Sequ
         jobs += [(name, seed, lambda name=name, seed=seed: synthetic_sequence(name, frames, size, seed, sensor, cache),
                   DEFAULT.at_level(SIZES[size])) for name in sequences]
         jobs += [(f"{common.short_name(p)}+persons", seed, lambda p=p, seed=seed: common.augmented_sequence(
-            p, persons=2, coverage=0.3, seed=seed, max_frames=frames, cache_dir=cache), None) for p in augment]
+            p, persons=2, coverage=0.3, seed=seed, max_frames=frames, cache_dir=cache, depth_time=depth_time), None)
+                 for p in augment]
     return jobs
 
 
@@ -390,7 +395,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     rows: List[dict] = []
     figs: Dict[str, Dict[str, str]] = {}
     notes: List[str] = []
-    jobs = sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames, a.size, a.sensor, a.cache)
+    jobs = sequence_jobs(a.sequences, a.augment, a.seed_list, a.frames, a.size, a.sensor, a.cache, a.augment_depth_time)
     for name, seed, make, camera in jobs:
         key = jax.random.key(seed)
         first = seed == a.seed_list[0]

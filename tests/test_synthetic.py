@@ -266,3 +266,28 @@ def test_augment_leaves_out_frames_before_the_ground_truth(tmp_path):
     assert info["frames"] == 3 and info["frames_outside_groundtruth"] == 2
     masks = [out / r[1] for r in rows(out / "masks.txt")]
     assert len(masks) == 3 and all(cv2.imread(str(m), cv2.IMREAD_UNCHANGED).any() for m in masks)
+
+
+def test_augment_at_the_depth_time_moves_only_the_persons_of_the_depth(tmp_path):
+    """depth_time=True: the colour, the masks and the real depth stay those of the plain
+    augmentation; the persons of each depth image are rendered where the camera was at the
+    depth's own timestamp, a few millimetres of camera motion away (fr2/desk moves ~8 mm a frame)."""
+    if not TUM_DESK.is_dir():
+        pytest.skip(f"real TUM data not found: {TUM_DESK}")
+    plain = augment(TUM_DESK, tmp_path / "plain", persons=2, coverage=0.3, seed=0, max_frames=3)
+    timed = augment(TUM_DESK, tmp_path / "timed", persons=2, coverage=0.3, seed=0, max_frames=3, depth_time=True)
+    lines = lambda p: [l.split() for l in p.read_text().splitlines() if not l.startswith("#")]
+    assert json.loads((timed / "info.json").read_text())["depth_time"] is True
+    assert "depth_time" not in json.loads((plain / "info.json").read_text())
+    moved = 0
+    for (ts, rgb_name), (dts, dep_name), (_, mask_name) in zip(lines(plain / "rgb.txt"), lines(plain / "depth.txt"),
+                                                               lines(plain / "masks.txt")):
+        read = lambda folder, name: cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED)  # noqa: E731
+        assert np.array_equal(read(plain, rgb_name), read(timed, rgb_name))
+        assert np.array_equal(read(plain, mask_name), read(timed, mask_name))
+        real_d, d0, d1 = read(TUM_DESK, dep_name), read(plain, dep_name), read(timed, dep_name)
+        # every pixel is the real depth or a person's, nearer than the real one
+        person = d1 != real_d
+        assert np.all((d1[person] < real_d[person]) | (real_d[person] == 0)) and np.all(d1[person] > 0)
+        moved += int(np.count_nonzero(d0 != d1))
+    assert moved > 0

@@ -20,7 +20,10 @@ the camera keeps its real ground truth:
   occluder is hit and ``occ < real`` or ``real == 0``. Those pixels get the
   occluder's colour and depth in both images (depth and colour are treated
   as registered; the depth frame is the one associated with the rgb frame),
-  and exactly those pixels are 255 in ``masks/``.
+  and exactly those pixels are 255 in ``masks/``. With ``depth_time=True`` the depth image's
+  occluders are rendered again at its own timestamp, from the camera's ground-truth pose then:
+  a sensor that takes its depth apart from its colour (``jaxvo.Frame.depth_time``) sees the
+  persons there, as it sees the room (the colour and the mask keep the colour image's render).
 
 Output: ``rgb/``, ``depth/`` (same file names as the input), ``masks/<rgb ts>.png``,
 ``rgb.txt``, ``depth.txt``, ``masks.txt`` (only the written frames),
@@ -40,6 +43,7 @@ import numpy as np
 
 from jaxvo.camera import Camera
 from jaxvo.data.errors import DatasetError
+from jaxvo.data.stamps import interpolate_poses
 from jaxvo.data.tum import TumSequence
 from jaxvo.synthetic.render import render
 from jaxvo.synthetic.scene import Scene, make_person
@@ -125,7 +129,7 @@ def _composite(rgb_bgr, depth_u16, occ):
 
 
 def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed: int = 0,
-            max_frames: Optional[int] = None, *, camera: Optional[Camera] = None,
+            max_frames: Optional[int] = None, *, camera: Optional[Camera] = None, depth_time: bool = False,
             progress: Optional[Callable[[int, int], None]] = None) -> Path:
     """Composite ``persons`` moving occluders into a real TUM sequence and write it to ``out_dir``.
 
@@ -138,6 +142,8 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
       seed: textures, shapes and walking phases. max_frames: use only the first N associated frames
         (of which those outside the ground truth's time span are left out: they have no pose).
       camera: intrinsics (default: from the folder name, e.g. freiburg2 -> TUM_FR2), at the images' size.
+      depth_time: the depth image's occluders at its own timestamp and pose (see the module
+        docstring); False: at the colour image's, in both images.
       progress: ``progress(done, total)`` after each frame.
     Returns ``Path(out_dir)``. Output is deterministic for a given input and arguments.
     """
@@ -162,6 +168,8 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
         gt_t, gt_T = seq.groundtruth
         covered, frame_poses = seq.groundtruth_at_frames()
     keep = np.flatnonzero(covered)[:max_frames]
+    if keep.size and depth_time:
+        depth_poses = interpolate_poses(gt_t, gt_T, seq.depth_timestamps[keep], tol=seq.gt_slack)
     if keep.size == 0:
         raise DatasetError(f"{seq.groundtruth_path}: no ground truth at any of the {len(seq)} frames "
                            f"({seq.timestamps[0]:.6f} .. {seq.timestamps[-1]:.6f} s); it covers "
@@ -220,6 +228,9 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
         t = float(seq.timestamps[n])
         occ = render(scene, cam, frame_poses[n], t)
         out_rgb, out_dep, win = _composite(rgb, dep, occ)
+        if depth_time:
+            td = float(seq.depth_timestamps[n])
+            out_dep = _composite(rgb, dep, render(scene, cam, depth_poses[done - 1], td))[1]
         (out / names[n]).parent.mkdir(parents=True, exist_ok=True)
         (out / dnames[n]).parent.mkdir(parents=True, exist_ok=True)
         for path, img in ((out / names[n], out_rgb), (out / dnames[n], out_dep),
@@ -244,5 +255,7 @@ def augment(real_seq_dir, out_dir, persons: int = 1, coverage: float = 0.3, seed
             "camera": {"fx": float(cam.fx), "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
                        "width": int(cam.width), "height": int(cam.height)},
             "distances_m": [round(w.distance, 4) for w in walks]}
+    if depth_time:
+        info["depth_time"] = True
     (out / "info.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return out
