@@ -40,9 +40,8 @@ def depth_motion(T_world_a: np.ndarray, T_world_b: np.ndarray, t_a: float, t_b: 
     t_b <= t_a."""
     if not t_b > t_a:
         return None
-    A = np.asarray(T_world_a, np.float64)
     s = (float(depth_time) - float(t_a)) / (float(t_b) - float(t_a))
-    T_world_depth = A @ geometry.exp(s * geometry.log(geometry.inverse(A) @ np.asarray(T_world_b, np.float64)))
+    T_world_depth = geometry.interpolate(np.asarray(T_world_a, np.float64), np.asarray(T_world_b, np.float64), s)
     return geometry.inverse(np.asarray(T_world_cam, np.float64)) @ T_world_depth
 
 

@@ -244,7 +244,6 @@ class Odometry:
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
         self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
-        self._times: dict = {}          # frame index -> its colour image's time (Frame.time) or None
         #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
         #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
         #: (track: against the reference; retry; recover: against an older keyframe; window: a new
@@ -276,7 +275,6 @@ class Odometry:
         check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
         self._frames[j] = frame
-        self._times[j] = getattr(frame, "time", None)
         # its pyramid, which every estimate it takes part in reads, and which holds the segmentation's inputs
         start = time.perf_counter()
         self._pyramids[j] = prepare_frame(frame, self.camera, self.config, f"frame {j}")
@@ -641,8 +639,6 @@ class Odometry:
             del self._info[old]
         for old in [i for i in self._key_trust if i not in self._window]:
             del self._key_trust[old]
-        for old in [i for i in self._times if i < self._ref]:   # a later reference is newer than this one
-            del self._times[old]
         self.static_map.forget(keep_depth)
         for d in (self._anchor, self._rel):   # estimates against the last references only
             for old in [i for i in d if i < keep_depth and i < self._ref - 2 * policy.max_gap and i not in self._window]:
@@ -678,15 +674,17 @@ class Odometry:
         interpolated along the twist between its pose and the posed frame next to it on the side
         of its depth's time (the one before it where there is none after it yet), and its pyramid
         made anew; as it is where either capture time is unknown or they are the same."""
+        # the frames from the reference on are all kept (_maybe_switch), its neighbours among them
+        def taken(i):
+            return getattr(self._frames.get(i), "time", None)
         frame, n = self._frames[new], len(self.poses)
-        taken, depth_taken = self._times.get(new), getattr(frame, "depth_time", None)
-        if taken is None or depth_taken is None or float(depth_taken) == float(taken) or new < 1:
+        depth_taken = getattr(frame, "depth_time", None)
+        if taken(new) is None or depth_taken is None or float(depth_taken) == float(taken(new)) or new < 1:
             return
-        a, b = (new, new + 1) if depth_taken > taken and new + 1 < n else (new - 1, new)
-        if self._times.get(a) is None or self._times.get(b) is None:
+        a, b = (new, new + 1) if depth_taken > taken(new) and new + 1 < n else (new - 1, new)
+        if taken(a) is None or taken(b) is None:
             return
-        T = depth_time.depth_motion(self.poses[a], self.poses[b], self._times[a], self._times[b], self.poses[new],
-                                    depth_taken)
+        T = depth_time.depth_motion(self.poses[a], self.poses[b], taken(a), taken(b), self.poses[new], depth_taken)
         if T is None:
             return
         frame = frame._replace(depth=depth_time.retimed_depth(frame.depth, T, self.camera))
