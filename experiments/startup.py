@@ -2,7 +2,8 @@
 
 Each entry point runs in its own new process, whole (interpreter start, imports, reading,
 loading or compiling the programs, the poses, writing and exit), on the first frames of a
-sequence, in a fresh (temporary) cache folder (``JAXVO_CACHE_DIR``):
+sequence, in a fresh (temporary) cache folder (``JAXVO_CACHE_DIR``), with Python's bytecode cache
+on as in an installed jaxvo (:func:`_child_env`):
 
 * ``cli``: ``jaxvo run SEQ --max-frames 3`` (the default tracking, trajectory written and
   evaluated as a user's run);
@@ -125,6 +126,15 @@ def _has_pose(paths) -> bool:
     return False
 
 
+def _child_env(folder: Path, t0: float) -> dict:
+    """A timed process's environment: this one's, its cache folder and start time set, and Python's
+    bytecode cache on (``PYTHONDONTWRITEBYTECODE`` dropped), as in an installed jaxvo, whose
+    modules are compiled to bytecode once: where the variable is set, every process would compile
+    jaxvo's sources again (about a tenth of a second), which no user's process does."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, cache.ENV: str(folder), _T0_ENV: repr(t0)}
+
+
 def run_once(entry: str, seq: Path, method: str, folder: Path, poll_s: float = 0.005) -> dict:
     """One new process of ``entry``: its wall time, CPU time (user + sys) and first-pose time (s),
     all from the moment the process is started. ``cli``'s first pose is when its trajectory (written
@@ -139,8 +149,7 @@ def run_once(entry: str, seq: Path, method: str, folder: Path, poll_s: float = 0
     t = time.time()
     first = float("nan")
     with tempfile.TemporaryFile("w+") as so, tempfile.TemporaryFile("w+") as se:
-        proc = subprocess.Popen(cmd, stdout=so, stderr=se, text=True, cwd=common._REPO,
-                                env={**os.environ, cache.ENV: str(folder), _T0_ENV: repr(t)})
+        proc = subprocess.Popen(cmd, stdout=so, stderr=se, text=True, cwd=common._REPO, env=_child_env(folder, t))
         while proc.poll() is None:
             if entry == "cli" and first != first and _has_pose(watched):
                 first = time.time() - t
@@ -466,7 +475,8 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
               f"machine); `warm`: the folder the cold run filled (per pass, the median of "
               f"{1 if args.quick else args.warm_runs} warm processes). `first pose s`: from the process's start to its first pose (`cli`: its "
               "trajectory's line for frame 1, watched every 5 ms); `process s`: the whole process's wall time; "
-              "`cpu s`: its user + sys time (less sensitive to other processes than the wall time). Passes: "
+              "`cpu s`: its user + sys time (less sensitive to other processes than the wall time); Python's "
+              "bytecode cache on, as in an installed jaxvo (`PYTHONDONTWRITEBYTECODE` dropped). Passes: "
               f"{1 if args.quick else args.repeats}, each in a fresh folder: the median, and in brackets the range. "
               f"Load average (1 min) at the start of the runs {loads[0]:.2f}, at their end {loads[1]:.2f}: other "
               "processes share this machine, so compare rows of one run, CPU times first.", "",

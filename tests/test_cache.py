@@ -294,7 +294,8 @@ ref = jaxvo.make_frame(img, np.full((60, 80), 2.0, np.float32))
 cur = jaxvo.make_frame(np.roll(img, 1, axis=1), ref.depth)
 est = jaxvo.estimate_motion(ref, cur, jaxvo.DEFAULT.at_level(3), jaxvo.Config(method="classic"), jax.random.key(0))
 print(json.dumps({"folder": str(jaxvo.cache.folder()), "cold": cold, "aot": aot.stats(), "jax": jaxvo.cache.stats(),
-                  "T": np.asarray(est.T_cur_ref).tolist(), "jaxopt": "jaxopt" in sys.modules}))
+                  "T": np.asarray(est.T_cur_ref).tolist(), "jaxopt": "jaxopt" in sys.modules,
+                  "scipy_linalg": "scipy.linalg" in sys.modules}))
 """
 
 
@@ -309,8 +310,8 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     """A program that only imports jaxvo: the first process on an empty folder compiles (and says
     so in one note line), a second one, after the folder was moved, compiles nothing: every
     program it needs is a hit, the estimator's executable is read as it is (neither traced, so
-    jaxopt and the scipy it imports are never imported, nor lowered), and the estimate is bitwise
-    the same."""
+    jaxopt and the scipy it imports are never imported, nor lowered; the LAPACK kernels are made
+    ready without the scipy.linalg package), and the estimate is bitwise the same."""
     first, err = _first_estimate(tmp_path / "cache")
     assert first["folder"] == str(tmp_path / "cache") and first["cold"] is True
     assert first["aot"]["exported"] == 2 and first["jax"]["requests"] > first["jax"]["hits"]  # pyramid, estimate
@@ -324,7 +325,7 @@ def test_a_new_library_process_reaches_its_first_estimate_without_compiling(tmp_
     second, err = _first_estimate(tmp_path / "moved")
     assert second["cold"] is False and not err.strip()
     assert second["aot"] == {"executables": 2, "loaded": 0, "exported": 0, "fallbacks": 0}
-    assert second["jaxopt"] is False
+    assert second["jaxopt"] is False and second["scipy_linalg"] is False
     assert second["jax"]["requests"] == second["jax"]["hits"] > 0 and second["jax"]["repaired"] == 0
     assert sorted(p.name for p in (tmp_path / "moved").rglob("*") if p.is_file()) == entries
     assert second["T"] == first["T"]

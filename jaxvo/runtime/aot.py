@@ -61,6 +61,7 @@ from typing import Callable, Dict, Optional, Tuple
 import jax
 import numpy as np
 
+from jaxvo.runtime import lapack
 from jaxvo.runtime.notes import note_once
 
 __all__ = ["Program", "call", "compile_ahead", "enable", "environment_tag", "folder", "has_programs", "placed",
@@ -77,7 +78,6 @@ _LOCKS: Dict[tuple, threading.Lock] = {}
 _LOCKS_LOCK = threading.Lock()
 _STATS = {"executables": 0, "loaded": 0, "exported": 0, "fallbacks": 0}
 _SOURCE: Dict[str, str] = {}
-_LAPACK = {"ready": False}
 # per thread: whether its latest compilation read JAX's cache (set by :func:`_on_event`)
 _COMPILED = threading.local()
 _LISTENING = {"on": False}
@@ -220,17 +220,11 @@ def _trees(n_in: int, n_out: int):
 
 def _lapack_ready() -> None:
     """Point XLA's CPU LAPACK kernels (Cholesky and triangular solves of the solvers) at their
-    implementations. JAX does so while it lowers a program that calls them; an executable read
-    from a file is never lowered, and running it before would call a null kernel."""
-    if _LAPACK["ready"] or jax.devices()[0].platform != "cpu":
-        return
-    try:
-        from jax._src.lib import lapack
-
-        lapack._lapack.initialize()
-    except Exception:  # noqa: BLE001 - another jaxlib: lowering any LAPACK call does it
-        jax.jit(jax.numpy.linalg.cholesky).lower(np.eye(2, dtype=np.float32))
-    _LAPACK["ready"] = True
+    implementations (:func:`jaxvo.runtime.lapack.ready`). JAX does so while it lowers a program
+    that calls them; an executable read from a file is never lowered, and running it before
+    would call a null kernel."""
+    if jax.devices()[0].platform == "cpu":
+        lapack.ready()
 
 
 def _read_executable(path: Path, leaves):
