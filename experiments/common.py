@@ -430,6 +430,33 @@ def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray
     return {"trans": t_err, "rot": r_err}
 
 
+#: The poses a tracking script evaluates (``--poses``): ``tracked``, as returned frame by frame
+#: (``Track.poses``, the trajectory ``jaxvo run`` writes), or ``refined``, refined in hindsight
+#: (``Track.refined``, :meth:`jaxvo.Odometry.refined_poses`).
+POSES = ("tracked", "refined")
+
+
+def add_poses_arg(ap) -> None:
+    """The ``--poses`` option of the scripts that evaluate the default tracking."""
+    ap.add_argument("--poses", choices=POSES, default="tracked",
+                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them) or "
+                         "refined in hindsight (Track.refined: each frame on its reference's latest anchor)")
+
+
+def relative_motions(poses) -> np.ndarray:
+    """(N-1, 4, 4) T_cur_ref of consecutive frames of (N, 4, 4) camera-to-world ``poses``."""
+    from jaxvo import geometry
+
+    P = np.asarray(poses, np.float64)
+    return np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
+        else np.zeros((0, 4, 4))
+
+
+def track_relative(tr, poses: str = "tracked") -> np.ndarray:
+    """A :class:`jaxvo.tracking.odometry.Track`'s relative motions from ``poses`` (:data:`POSES`)."""
+    return tr.relative if poses == "tracked" else relative_motions(tr.refined)
+
+
 def evaluate(seq: datasets.TumSequence, relative) -> Dict[str, object]:
     """Trajectory metrics of chained ``relative`` motions on ``seq``'s frames, against the ground
     truth interpolated at the frame stamps (:func:`jaxvo.evaluation.scoring.evaluate`,

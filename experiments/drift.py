@@ -53,6 +53,7 @@ def parse_args(argv=None):
     ap.add_argument("--policy", default=None,
                     help="JSON object of jaxvo.TrackConfig fields changed in both trackings (the single reference "
                          "is the same with window 1), e.g. '{\"second_opinion\": 0}'")
+    common.add_poses_arg(ap)
     ap.add_argument("--out", default=str(common.RESULTS / "drift" / "drift.md"), help="markdown output (JSON beside)")
     args = ap.parse_args(argv)
     try:
@@ -102,9 +103,9 @@ def drift_stats(stamps, gt, est):
     return out
 
 
-def _track_all(frames, camera, seed, changes=None):
+def _track_all(frames, camera, seed, changes=None, poses: str = "tracked"):
     """{policy: (poses (N, 4, 4), held frames, s per frame after the first 10)} for both policies
-    (:func:`_policies` of ``changes``)."""
+    (:func:`_policies` of ``changes``); ``poses``: as tracked or refined in hindsight (``common.POSES``)."""
     import jax
     from jaxvo.tracking.odometry import Odometry
     out = {}
@@ -116,13 +117,14 @@ def _track_all(frames, camera, seed, changes=None):
                 t0 = time.perf_counter()
             odo.add(f)
         dt = (time.perf_counter() - t0) / max(1, len(frames) - 10) if t0 else float("nan")
-        out[name] = (np.stack(odo.poses), int(len(odo.valid) - sum(odo.valid)), dt)
+        out[name] = (np.stack(odo.poses) if poses == "tracked" else odo.refined_poses(),
+                     int(len(odo.valid) - sum(odo.valid)), dt)
     return out
 
 
 def run_crowd(job):
     """One seed of the synthetic crowd: rows for both policies."""
-    seed, frames, size, changes = job
+    seed, frames, size, changes, poses = job
     from jaxvo.camera import DEFAULT, camera_for_size
     from jaxvo.frame import make_frame
     from jaxvo.synthetic import SensorModel, make_sequence
@@ -136,7 +138,7 @@ def run_crowd(job):
         imgs.append(make_frame(r.rgb, r.depth))
         covered.append(float(r.moving_mask.mean()))
     rows = []
-    for name, (P, held, dt) in _track_all(imgs, camera, seed, changes).items():
+    for name, (P, held, dt) in _track_all(imgs, camera, seed, changes, poses).items():
         rows.append({"data": f"synthetic crowd {frames} frames {size}", "seed": seed, "policy": name, "held": held,
                      "ms_per_frame": 1000 * dt, "moving_max": max(covered), "moving_mean": float(np.mean(covered)),
                      **drift_stats(seq.timestamps, seq.poses, P)})
@@ -145,13 +147,13 @@ def run_crowd(job):
 
 def run_augmented(job):
     """One seed of a dynamic augmentation of a real recording: rows for both policies."""
-    real, seed, persons, changes = job
+    real, seed, persons, changes, poses = job
     aug = common.augmented_sequence(real, persons=persons, seed=seed)
     seq = common.open_sequence(aug)
     frames = common.load_frames(seq)
     stamps, G, mask = common.groundtruth_at(seq)
     rows = []
-    for name, (P, held, dt) in _track_all(frames, seq.camera, seed, changes).items():
+    for name, (P, held, dt) in _track_all(frames, seq.camera, seed, changes, poses).items():
         rows.append({"data": f"{common.short_name(real)} + {persons} persons", "seed": seed, "policy": name,
                      "held": held, "ms_per_frame": 1000 * dt, **drift_stats(stamps, G, P[mask])})
     return rows
@@ -187,8 +189,9 @@ def summary_md(rows):
 def main(argv=None):
     args = parse_args(argv)
     seeds = common.int_list(args.seeds)
-    jobs = [(run_crowd, (s, args.frames, args.size, args.policy)) for s in seeds if args.frames > 0]
-    jobs += [(run_augmented, (str(Path(r)), s, args.persons, args.policy)) for r in args.augment for s in seeds]
+    jobs = [(run_crowd, (s, args.frames, args.size, args.policy, args.poses)) for s in seeds if args.frames > 0]
+    jobs += [(run_augmented, (str(Path(r)), s, args.persons, args.policy, args.poses)) for r in args.augment
+             for s in seeds]
     t0 = time.time()
     if args.jobs > 1:
         with multiprocessing.get_context("spawn").Pool(args.jobs, initializer=_single_thread) as pool:

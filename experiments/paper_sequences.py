@@ -95,6 +95,7 @@ def parse_args(argv=None):
                     help="JSON object of jaxvo.Config fields applied to every method, the default included "
                          "(e.g. '{\"ransac_finest\": 2}')")
     ap.add_argument("--cache", type=Path, default=None, help=f"folder of generated sequences (default {common.CACHE})")
+    common.add_poses_arg(ap)
     ap.add_argument("--out", type=Path, default=common.RESULTS / "paper_sequences" / "paper_sequences.md",
                     help="markdown output (json next to it, figures in <stem>/)")
     a = ap.parse_args(argv)
@@ -258,13 +259,14 @@ def true_masks(folder, seq: TumSequence) -> list:
 
 
 def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
-                config: Optional[dict] = None, odometry=None) -> dict:
+                config: Optional[dict] = None, odometry=None, poses: str = "tracked") -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
     Also ``mask_steps``: (pairs, 6) int64, per estimate (frame, reference, tp, fp, fn, tn) of that mask,
     and ``valid``: (pairs,) bool, False where the estimate of frame i+1 failed and its pose was held.
-    ``odometry``: a subclass of :class:`jaxvo.Odometry` to run instead (``jaxvo.track``'s loop)."""
+    ``odometry``: a subclass of :class:`jaxvo.Odometry` to run instead (``jaxvo.track``'s loop).
+    ``poses``: the relative motions of the poses as tracked or refined in hindsight (``common.POSES``)."""
     cam = seq.camera
     per_step = []
     cover = np.array([m.mean() for m in true_masks])
@@ -295,7 +297,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
         tr = odo.result()
     steps = np.asarray(per_step, np.int64).reshape(-1, 6)
     tp, fp, fn, tn = (int(c) for c in steps[:, 2:].sum(0))
-    return {"relative": tr.relative, "valid": tr.valid, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
+    return {"relative": common.track_relative(tr, poses), "valid": tr.valid, "seconds": np.asarray(secs[1:] or secs), "compile_s": secs[0] if secs else
             time.perf_counter() - t0, "inlier_ratio": np.asarray(ratio),
             "mask": {"precision": tp / (tp + fp) if tp + fp else None, "recall": tp / (tp + fn) if tp + fn else None,
                      "iou": tp / (tp + fp + fn) if tp + fp + fn else None, "tp": tp, "fp": fp, "fn": fn, "tn": tn},
@@ -303,11 +305,12 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
 
 
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
-            policy: Optional[TrackConfig] = None, config: Optional[dict] = None) -> dict:
+            policy: Optional[TrackConfig] = None, config: Optional[dict] = None, poses: str = "tracked") -> dict:
     """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts.
-    config: Config fields changed from their defaults (every method)."""
+    config: Config fields changed from their defaults (every method). poses: the default's, as
+    tracked or refined in hindsight (:func:`run_default`)."""
     if method == "default":
-        return run_default(seq, frames, true_masks, key, policy, config)
+        return run_default(seq, frames, true_masks, key, policy, config, poses=poses)
     cam = seq.camera
     cfg = Config.from_json({**(config or {}), "method": method})
     P = len(frames) - 1
@@ -413,7 +416,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         runs = {}
         for method in a.methods:
             common.log(f"{name} (seed {seed}): {method} on {len(frames) - 1} pairs")
-            r = run_one(seq, frames, true, method, key, a.policy_obj, a.config)
+            r = run_one(seq, frames, true, method, key, a.policy_obj, a.config, a.poses)
             runs[method] = r
             ev = common.evaluate(seq, r["relative"])
             dr = end_drift(seq, trajectory.chain(r["relative"]))

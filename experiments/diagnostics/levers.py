@@ -63,6 +63,10 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--perturb", type=int, default=1,
                     help="inputs per seed: the frames as read, then K - 1 draws of +-0.25 grey-level luminance "
                          "noise (default 1: as read)")
+    ap.add_argument("--poses", choices=common.POSES + ("both",), default="tracked",
+                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them), refined "
+                         "in hindsight (Track.refined), or both: a second row per variant, '<name>, refined', "
+                         "from the same runs")
     ap.add_argument("--out", default=str(common.RESULTS / "levers" / "levers.md"), help="markdown output")
     return ap.parse_args(argv)
 
@@ -98,7 +102,7 @@ def parse_variants(text: str) -> dict:
 
 
 def run_pass(seq, frames, config: Config, policy: TrackConfig, key, segment: Optional[SegmentParams] = None):
-    """One pass of the odometry: (per-frame seconds of frames 1.., relative motions, estimates, held)."""
+    """One pass of the odometry: (per-frame seconds of frames 1.., its Track, estimates, held)."""
     odo = Odometry(seq.camera, config, key, policy, segment_params=segment)
     # counts the estimates by purpose; each is blocked on, as the odometry reads each at once anyway
     odo.timings = {}
@@ -109,7 +113,7 @@ def run_pass(seq, frames, config: Config, policy: TrackConfig, key, segment: Opt
         secs.append(time.perf_counter() - t)
     tr = odo.result()
     n_est = sum(len(v) for k, v in odo.timings.items() if k.startswith("estimate"))
-    return np.asarray(secs[1:]), tr.relative, n_est, int(np.sum(~tr.valid))
+    return np.asarray(secs[1:]), tr, n_est, int(np.sum(~tr.valid))
 
 
 def main(argv=None):
@@ -124,9 +128,12 @@ def main(argv=None):
         seq = common.open_sequence(path, max_frames=args.max_frames)
         frames = common.load_frames(seq)
         common.log(f"[levers] {seq.name}: {len(frames)} frames")
-        times = {name: [] for name in variants}
+        kinds = common.POSES if args.poses == "both" else (args.poses,)
+        labels = {(name, kind): name if kind == "tracked" or args.poses != "both" else f"{name}, refined"
+                  for name in variants for kind in kinds}
+        times = {label: [] for label in labels.values()}
         cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
-        results = {name: [] for name in variants}
+        results = {label: [] for label in labels.values()}
         def reading(name):
             """(lens, depth scale) the variant reads the sequence with, "folder" resolved (None: the
             reader's default, the folder's sensor's)."""
@@ -146,15 +153,18 @@ def main(argv=None):
             order = list(variants) if run % 2 == 0 else list(variants)[::-1]
             for name in order:
                 config, policy, _, _, segment = variants[name]
-                secs, rel, n_est, held = run_pass(seq, inputs[reading(name)], config, policy, jax.random.key(seed),
-                                                  segment)
-                times[name].append(secs)
-                results[name].append({**common.evaluate(seq, rel), "estimates": n_est / len(secs), "held": held})
-                common.log(f"  seed {seed} input {draw} {name}: {secs.mean() * 1000:.1f} ms/frame, "
-                            f"ATE {results[name][-1]['ate']:.4f}")
+                secs, tr, n_est, held = run_pass(seq, inputs[reading(name)], config, policy, jax.random.key(seed),
+                                                 segment)
+                for kind in kinds:
+                    label = labels[(name, kind)]
+                    times[label].append(secs)
+                    results[label].append({**common.evaluate(seq, common.track_relative(tr, kind)),
+                                           "estimates": n_est / len(secs), "held": held})
+                    common.log(f"  seed {seed} input {draw} {label}: {secs.mean() * 1000:.1f} ms/frame, "
+                                f"ATE {results[label][-1]['ate']:.4f}")
             cv.append(common.run_method("opencv-rgb", frames, seq.camera, warmup=False)["seconds"])
         cv_mean = float(np.mean(np.concatenate(cv))) * 1000
-        for name in variants:
+        for name in results:
             st = common.timing_stats(np.concatenate(times[name]))
             res = results[name]
 
@@ -174,7 +184,9 @@ def main(argv=None):
               "Time: mean / median wall time of `Odometry.add` per frame over all seeds' passes, "
               "after a warm-up; `/ OpenCV`: the mean against OpenCV rgb's mean over the same pairs, timed "
               "between the passes. `estimates`: `estimate_motion` calls per frame. ATE, RPE 1 s: mean over the "
-              "runs (seeds x inputs) [range].", ""]
+              "runs (seeds x inputs) [range], of the poses "
+              f"{'as tracked and, in the rows named refined, refined in hindsight (Track.refined)' if args.poses == 'both' else args.poses}"
+              ".", ""]
     lines += common.md_table(rows, [("sequence", "sequence", ""), ("variant", "variant", ""),
                                     ("mean ms", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),
                                     ("/ OpenCV", "ratio_opencv", ".2f"), ("estimates", "estimates", ".2f"),

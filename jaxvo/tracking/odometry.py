@@ -24,12 +24,16 @@ class Track(NamedTuple):
     relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1), from the poses.
     inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed and was held).
     reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
+    refined: (N, 4, 4) float64 T_world_cam refined in hindsight (:meth:`Odometry.refined_poses`):
+    each frame on the latest anchor of the reference it was posed on, a frame that became a
+    reference at its anchor. ``poses`` are the poses as tracked, returned frame by frame.
     """
     poses: np.ndarray
     relative: np.ndarray
     inlier_ratio: np.ndarray
     valid: np.ndarray
     reference: np.ndarray
+    refined: Optional[np.ndarray] = None
 
 
 class TrackStep(NamedTuple):
@@ -244,6 +248,10 @@ class Odometry:
         self._key_trust: dict = {}      # keyframe -> (static weights, calm) when it stopped being the reference
         self._info: dict = {}           # frame index -> information of its valid estimate (device array)
         self._chained: dict = {}        # reference -> its chained pose, until a frame is posed from its refined one
+        # for refined_poses, kept for the whole run (a 4x4 per frame): frame j >= 1 -> (the reference
+        # it was posed on, that reference's anchor then); reference -> its latest anchor
+        self._posed_on: dict = {}
+        self._last_anchor: dict = {}
         #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
         #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
         #: (track: against the reference; retry; recover: against an older keyframe; window: a new
@@ -333,6 +341,7 @@ class Odometry:
         T, ratio, ratio_static, valid, dynamic = judged.T, judged.ratio, judged.ratio_static, judged.valid, judged.dynamic
         pose = self._held(j) if not valid and policy.hold_invalid else self._chain_pose(used) @ geometry.inverse(T)
         poses.append(pose)
+        self._posed_on[j] = (used, self._chain_pose(used))
         self.valid.append(valid)
         self.inlier_ratio.append(ratio)
         self.references.append(used)
@@ -664,6 +673,7 @@ class Odometry:
             self._anchor[new] = self._windowed_anchor(new)
         else:
             self._anchor[new] = self._fused_anchor(new, j)
+        self._last_anchor[new] = self._anchor[new]
         self._ref = new
         self.static_map.new_reference(old, new, j, self.policy.history, self._chain_pose, self.valid,
                                       self.view_pose)
@@ -748,7 +758,7 @@ class Odometry:
             return pose
         for k, P in zip(nodes[:-1], refined[:-1]):
             if k != nodes[0]:
-                self._anchor[k] = P
+                self._anchor[k] = self._last_anchor[k] = P
         self._chained = {new: pose}
         return refined[-1]
 
@@ -768,13 +778,35 @@ class Odometry:
         smoothed when it became a reference) where set, else its own pose."""
         return self._anchor.get(i, self.poses[i])
 
+    def refined_poses(self) -> np.ndarray:
+        """(N, 4, 4) float64 T_world_cam of the frames added so far, refined in hindsight.
+
+        Frame j was posed on its reference r's anchor A_then (``T_world_j = A_then @ inv(T_j_r)``);
+        a window refinement may move r's anchor after that (:meth:`_windowed_anchor`), which moves
+        the frames posed on r later but not frame j as returned. Here frame j is posed on r's
+        latest anchor instead: ``A_latest @ inv(A_then) @ T_world_j``, the same pose relative to
+        its reference; a frame that became a reference is at its own latest anchor (smoothed,
+        fused or refined: the pose later frames chain from). Where nothing moved (frame 0, a
+        reference whose anchor never changed) it is the pose as tracked, bitwise. A frame's
+        refined pose changes no more once its reference has left the window or is its oldest
+        keyframe."""
+        out = list(self.poses[:1])
+        for j in range(1, len(self.poses)):
+            if j in self._last_anchor:
+                out.append(self._last_anchor[j])
+                continue
+            ref, then = self._posed_on[j]
+            latest = self._last_anchor.get(ref, then)
+            out.append(self.poses[j] if latest is then else latest @ geometry.inverse(then) @ self.poses[j])
+        return np.stack(out) if out else np.zeros((0, 4, 4))
+
     def result(self) -> "Track":
         """The :class:`Track` of the frames added so far."""
         P = np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
         rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
             else np.zeros((0, 4, 4))
         return Track(P, rel, np.asarray(self.inlier_ratio), np.asarray(self.valid, bool),
-                     np.asarray(self.references, int))
+                     np.asarray(self.references, int), self.refined_poses())
 
 
 def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,
