@@ -37,7 +37,6 @@ try:                    # run as a script (python experiments/drift.py)
 except ImportError:     # imported as experiments.drift (experiments.diagnostics)
     from experiments import common
 
-POLICIES = ("window", "single")
 SEGMENT = 100
 
 
@@ -53,7 +52,9 @@ def parse_args(argv=None):
     ap.add_argument("--policy", default=None,
                     help="JSON object of jaxvo.TrackConfig fields changed in both trackings (the single reference "
                          "is the same with window 1), e.g. '{\"second_opinion\": 0}'")
-    common.add_poses_arg(ap)
+    ap.add_argument("--poses", choices=common.POSES + ("both",), default="tracked",
+                    help="evaluate the poses as tracked (default: as jaxvo run writes them), refined in hindsight "
+                         "(Track.refined), or both (rows '<policy>, refined' from the same runs)")
     ap.add_argument("--out", default=str(common.RESULTS / "drift" / "drift.md"), help="markdown output (JSON beside)")
     args = ap.parse_args(argv)
     try:
@@ -105,7 +106,8 @@ def drift_stats(stamps, gt, est):
 
 def _track_all(frames, camera, seed, changes=None, poses: str = "tracked"):
     """{policy: (poses (N, 4, 4), held frames, s per frame after the first 10)} for both policies
-    (:func:`_policies` of ``changes``); ``poses``: as tracked or refined in hindsight (``common.POSES``)."""
+    (:func:`_policies` of ``changes``); ``poses``: as tracked or refined in hindsight (``common.POSES``),
+    or both (each policy's refined poses then under "<policy>, refined")."""
     import jax
     from jaxvo.tracking.odometry import Odometry
     out = {}
@@ -117,8 +119,11 @@ def _track_all(frames, camera, seed, changes=None, poses: str = "tracked"):
                 t0 = time.perf_counter()
             odo.add(f)
         dt = (time.perf_counter() - t0) / max(1, len(frames) - 10) if t0 else float("nan")
-        out[name] = (np.stack(odo.poses) if poses == "tracked" else odo.refined_poses(),
-                     int(len(odo.valid) - sum(odo.valid)), dt)
+        held = int(len(odo.valid) - sum(odo.valid))
+        if poses in ("tracked", "both"):
+            out[name] = (np.stack(odo.poses), held, dt)
+        if poses in ("refined", "both"):
+            out[name if poses == "refined" else f"{name}, refined"] = (odo.refined_poses(), held, dt)
     return out
 
 
@@ -170,7 +175,7 @@ def summary_md(rows):
     lines = ["| data | tracking | seeds | " + " | ".join(c[1] for c in COLUMNS) + " |",
              "| --- | --- | --- | " + " | ".join("---" for _ in COLUMNS) + " |"]
     for data in dict.fromkeys(r["data"] for r in rows):
-        for policy in POLICIES:
+        for policy in dict.fromkeys(r["policy"] for r in rows if r["data"] == data):
             sel = [r for r in rows if r["data"] == data and r["policy"] == policy]
             cells = []
             for key, _, spec in COLUMNS:

@@ -331,6 +331,13 @@ class TrackConfig(NamedTuple):
     #: depth moved to the colour image's time (:mod:`jaxvo.tracking.depth_time`), with the camera's
     #: motion between it and the posed frame next to it. A lever, off: docs/decisions/depth-time.md.
     retime_depth: Annotated[bool, flag()] = False
+    #: The poses ``Track.poses`` and ``jaxvo run``'s trajectory hold: "tracked", each frame's pose
+    #: as it was returned (``TrackStep.T_world_cur``; the trajectory gets a line per frame as it is
+    #: tracked), or "refined", refined in hindsight (:meth:`jaxvo.Odometry.refined_poses`: each
+    #: frame on its reference's latest anchor; the trajectory gets a frame's line once its refined
+    #: pose can no longer change, ``TrackStep.settled``, a few frames later, and the rest at the
+    #: end). docs/decisions/window.md.
+    poses: Annotated[str, choice("tracked", "refined")] = "tracked"
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

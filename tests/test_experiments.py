@@ -692,12 +692,14 @@ def test_drift_quick_with_a_policy_change(tmp_path):
     out = tmp_path / "drift.md"
     flags = os.environ.get("XLA_FLAGS")
     drift.main(["--frames", "40", "--size", "160x120", "--seeds", "0", "--policy", '{"second_opinion": 0}',
-                "--out", str(out)])
+                "--poses", "both", "--out", str(out)])
     text = out.read_text()
     assert "--policy" in text and "| synthetic crowd 40 frames 160x120 | window | 1 |" in text
     assert "| synthetic crowd 40 frames 160x120 | single | 1 |" in text
+    assert "| synthetic crowd 40 frames 160x120 | window, refined | 1 |" in text
     rows = json.loads(out.with_suffix(".json").read_text())["rows"]
-    assert {r["policy"] for r in rows} == {"window", "single"} and all(np.isfinite(r["ate"]) for r in rows)
+    assert {r["policy"] for r in rows} == {"window", "single", "window, refined", "single, refined"}
+    assert all(np.isfinite(r["ate"]) for r in rows)
     # the single-thread flag is for the script's own process and its workers, not its caller's
     assert os.environ.get("XLA_FLAGS") == flags
 

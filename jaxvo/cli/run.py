@@ -136,6 +136,10 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
               help="Keyframes in the window: each new keyframe is estimated against the others and their "
                    "poses are refined together; a frame that fails against its reference is tried against "
                    "them [default: 3; 1 = the single reference; 1 with --frame-to-frame].")
+@click.option("--poses", type=click.Choice(["tracked", "refined"]), default=None,
+              help="The trajectory's poses: as tracked, a line per frame as it goes; or refined in hindsight, "
+                   "each frame on the latest pose of its keyframe, a line once it is final (a few frames "
+                   "later; the rest at the end or at Ctrl-C) [default: tracked].")
 @click.option("--frame-to-frame", is_flag=True,
               help="The paper's chaining: every frame against the previous one, no segmentation. With "
                    "--config '{\"prior_candidate\": \"raw\", ...}' or --paper, the published algorithm.")
@@ -148,7 +152,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @handle_errors
 def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config_file, thresh_lum, thresh_depth,
             finest_level, save_masks, camera_preset, depth_scale, mask_dir, fx, fy, cx, cy, lens, max_dt, keyframe_gap,
-            keyframe_lag, segment, window, frame_to_frame, paper, no_progress, force):
+            keyframe_lag, segment, window, poses, frame_to_frame, paper, no_progress, force):
     dirs = expand_sequences(sequence_dirs)
     ctx = click.get_current_context()
 
@@ -163,7 +167,8 @@ def run_cmd(sequence_dirs, method, out, out_dir, max_frames, start, seed, config
                                    if name == "--out" else f"{name} is for one sequence, got {len(dirs)} sequences")
     setup = setup_run(config_file, method=method, thresh_lum=thresh_lum, thresh_depth=thresh_depth,
                       finest_level=finest_level, seed=given("seed", seed), keyframe_gap=keyframe_gap,
-                      keyframe_lag=keyframe_lag, segment=segment, window=window, frame_to_frame=frame_to_frame,
+                      keyframe_lag=keyframe_lag, segment=segment, window=window, poses=poses,
+                      frame_to_frame=frame_to_frame,
                       paper=paper,
                       camera_preset=camera_preset, fx=fx, fy=fy, cx=cx, cy=cy, depth_scale=depth_scale,
                       max_dt=given("max_dt", max_dt), start=given("start", start), max_frames=max_frames,

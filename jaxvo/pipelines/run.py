@@ -245,7 +245,10 @@ class RunResult:
 class _Recorder:
     """What a run keeps of one sequence: the trajectory written as it grows (after the ``#``
     header of :func:`run_header`), optional outlier masks, poses, inlier ratios and timings.
-    ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult."""
+    ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult. With
+    ``TrackConfig.poses`` "refined" the trajectory holds the refined poses: each line written once
+    the step says it is final (``TrackStep.settled``), the frames still open written at
+    :meth:`close` as they stand then (the end of the run, or Ctrl-C)."""
 
     def __init__(self, seq: TumSequence, config, seed: int, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None):
@@ -263,6 +266,8 @@ class _Recorder:
                 raise DatasetError(f"{self.mask_dir}: cannot create mask folder ({e.strerror or e})") from None
         header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
         self.writer = TrajectoryWriter(out, header=header) if out is not None else None
+        self.refined = policy is not None and policy.poses == "refined"
+        self.open_poses: dict = {}    # refined: frame -> pose, the frames not settled yet
         self.poses = [np.eye(4)]
         self.ratios: List[float] = []
         self.valids: List[bool] = []
@@ -275,6 +280,10 @@ class _Recorder:
             self.writer.write_first(self.stamps[0])
 
     def close(self) -> None:
+        if self.refined:
+            for i in sorted(self.open_poses):
+                self._line(i, self.open_poses[i])
+            self.open_poses = {}
         if self.writer is not None:
             self.writer.close()
         if self.mask_dir is not None:
@@ -294,9 +303,12 @@ class _Recorder:
         i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
         self.ratios.append(float(est.inlier_ratio))
         self.valids.append(bool(step.valid))
-        self.poses.append(np.asarray(pose, np.float64))
-        if self.writer is not None:
-            self.writer.write(self.stamps[i + 1], pose, held=not step.valid)
+        if self.refined:   # the frames this step settles, in order; the others wait
+            self.open_poses.update(step.refined)
+            for k in range(len(self.poses), step.settled):
+                self._line(k, self.open_poses.pop(k))
+        else:
+            self._line(i + 1, pose)
         if self.mask_dir is not None:
             m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
             name = mask_name(self.stamps[ref], self.stamps[i + 1])
@@ -312,6 +324,12 @@ class _Recorder:
             self.pbar.set_postfix(inliers=f"{self.ratios[-1]:.2f}", refresh=False,
                                   **({"fps": f"{fps:.2f}"} if np.isfinite(fps) else {}))
             self.pbar.update(1)
+
+    def _line(self, k: int, pose) -> None:
+        """Frame k's pose, the next one in order: kept, and written to the trajectory."""
+        self.poses.append(np.asarray(pose, np.float64))
+        if self.writer is not None:
+            self.writer.write(self.stamps[k], pose, held=not self.valids[k - 1])
 
     def fps(self) -> float:
         """Pairs per second after the first pair (compilation): the summary's frames/s."""
@@ -402,12 +420,13 @@ def run_sequences(seqs: List[TumSequence], config, seed: int = 0, outs=None, on_
 # ----------------------------------------------------------------------------- folders, as jaxvo run takes them
 
 def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None, frame_to_frame: bool = False,
-                 segment: Optional[bool] = None, window: Optional[int] = None):
+                 segment: Optional[bool] = None, window: Optional[int] = None, poses: Optional[str] = None):
     """:class:`jaxvo.config.TrackConfig` from ``jaxvo run``'s options on top of ``base`` (default
     ``TrackConfig()``, jaxvo's segmented keyframes): ``frame_to_frame`` (the paper's chaining),
     ``gap`` / ``lag`` in frames (lag defaults to gap // 2; None keeps base's; a gap turns off the
-    calm frame-to-frame mode), ``segment`` and ``window`` (keyframes in the window; None keeps
-    base's). A bad combination raises ValueError naming the options."""
+    calm frame-to-frame mode), ``segment``, ``window`` (keyframes in the window) and ``poses``
+    (the trajectory's poses, ``TrackConfig.poses``); None keeps base's. A bad combination raises
+    ValueError naming the options."""
     from jaxvo.config import TrackConfig
 
     base = TrackConfig() if base is None else base
@@ -424,6 +443,8 @@ def track_policy(gap: Optional[int] = None, lag: Optional[int] = None, base=None
         policy = policy._replace(segment=bool(segment))
     if window is not None:
         policy = policy._replace(window=int(window))
+    if poses is not None:
+        policy = policy._replace(poses=str(poses))
     try:
         policy.validate()
     except ValueError:
@@ -501,7 +522,7 @@ class RunSetup:
 
 
 def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=None, finest_level=None,
-              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None, window=None,
+              seed: Optional[int] = None, keyframe_gap=None, keyframe_lag=None, segment=None, window=None, poses=None,
               frame_to_frame: bool = False, paper: bool = False, camera_preset=None, fx=None, fy=None, cx=None,
               cy=None, depth_scale=None, max_dt=None, start=None, max_frames=None, mask_dir=None, lens=None,
               from_header: bool = True) -> RunSetup:
@@ -513,7 +534,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     user masks, intrinsics, lens), so the run is reproduced bitwise on the same machine. Options not
     given and not in the file take their defaults (seed 0, start 0, max_dt 0.02 s).
     ``paper``: :meth:`jaxvo.config.Config.paper` and frame to frame; ``keyframe_gap``,
-    ``keyframe_lag``, ``segment``, ``window``, ``frame_to_frame``: :func:`track_policy`.
+    ``keyframe_lag``, ``segment``, ``window``, ``poses``, ``frame_to_frame``: :func:`track_policy`.
     """
     from jaxvo.config import Config, TrackConfig
 
@@ -536,7 +557,7 @@ def setup_run(config_file=None, *, method=None, thresh_lum=None, thresh_depth=No
     if paper:
         config = Config.paper(config.method, thresh_lum=config.thresh_lum, thresh_depth=config.thresh_depth,
                               finest_level=config.finest_level)
-    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment, window)
+    policy = track_policy(keyframe_gap, keyframe_lag, base, frame_to_frame or paper, segment, window, poses)
     sq = (settings.sequence or {}) if from_header else {}
     if sq and not isinstance(sq, dict):
         raise DatasetError(f"{config_file}: '# sequence:' header: expected a JSON object, got {sq!r}")

@@ -20,7 +20,8 @@ from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 class Track(NamedTuple):
     """Result of :func:`track`.
 
-    poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default).
+    poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default):
+    as tracked (``TrackConfig.poses`` "tracked") or ``refined`` ("refined").
     relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1), from the poses.
     inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed and was held).
     reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
@@ -49,6 +50,12 @@ class TrackStep(NamedTuple):
     and the pose was held (see :class:`TrackConfig`).
     static_mask: (H, W) bool, the reference pixels the segmentation trusted as static for
     this estimate (all True without segmentation).
+    settled: frames [0, settled) hold their final pose in ``Track.poses`` (every frame so far
+    with ``TrackConfig.poses`` "tracked"; with "refined", those whose refined pose can no longer
+    change, :meth:`Odometry.settled`).
+    refined: with ``TrackConfig.poses`` "refined", frame index -> (4, 4) float64 refined pose of
+    the frames from the previous step's ``settled`` to this one (final below ``settled``, the
+    others as they stand now); None with "tracked".
     """
     frame: int
     reference: int
@@ -56,6 +63,8 @@ class TrackStep(NamedTuple):
     T_world_cur: np.ndarray
     valid: bool
     static_mask: Optional[np.ndarray] = None
+    settled: int = 0
+    refined: Optional[dict] = None
 
 
 #: Two estimates of a frame against different keyframes that its guess makes jumps agree when
@@ -200,7 +209,9 @@ class Odometry:
     (:mod:`jaxvo.tracking.window`), so the poses later frames chain from rest on several estimates,
     not one. A frame that fails against its reference is estimated against the window's older
     keyframes before it is held (``TrackConfig.recover``), and kept where two of those estimates agree
-    on its pose even if they are jumps from its guess. Poses already returned never change.
+    on its pose even if they are jumps from its guess. Poses already returned never change;
+    :meth:`refined_poses` (``Track.refined``) gives them refined in hindsight, each on its
+    reference's latest anchor.
 
     Frame j (j >= 1) is estimated with key ``jax.random.fold_in(key, j - 1)``; the same key
     and frames give bitwise the same poses. Each result is pulled to the host before the
@@ -252,6 +263,7 @@ class Odometry:
         # it was posed on, that reference's anchor then); reference -> its latest anchor
         self._posed_on: dict = {}
         self._last_anchor: dict = {}
+        self._settled = 1               # frames whose refined pose can no longer change (settled())
         #: None, or a dict that profiles where the time goes: set ``odo.timings = {}`` and every
         #: estimate is blocked on and its wall time (s) appended under ``"estimate: <purpose>"``
         #: (track: against the reference; retry; recover: against an older keyframe; window: a new
@@ -358,7 +370,10 @@ class Odometry:
         if used != ref:   # the switch tests read the motion from the current reference
             T = geometry.inverse(pose) @ T_world_ref
         self._maybe_switch(j, T, ratio_static, dynamic)
-        return result
+        if policy.poses == "tracked":
+            return result._replace(settled=j + 1)
+        first = self._settled
+        return result._replace(settled=self.settled(), refined={i: self._refined_pose(i) for i in range(first, j + 1)})
 
     def _second_opinion(self, pair: "PairInputs", est: MotionEstimate, judged: Judgement, extra, share: float):
         """(estimate, judgement) of a frame whose valid estimate rests on a reference that trusts
@@ -790,23 +805,41 @@ class Odometry:
         reference whose anchor never changed) it is the pose as tracked, bitwise. A frame's
         refined pose changes no more once its reference has left the window or is its oldest
         keyframe."""
-        out = list(self.poses[:1])
-        for j in range(1, len(self.poses)):
-            if j in self._last_anchor:
-                out.append(self._last_anchor[j])
-                continue
-            ref, then = self._posed_on[j]
-            latest = self._last_anchor.get(ref, then)
-            out.append(self.poses[j] if latest is then else latest @ geometry.inverse(then) @ self.poses[j])
-        return np.stack(out) if out else np.zeros((0, 4, 4))
+        return np.stack([self._refined_pose(j) for j in range(len(self.poses))]) if self.poses \
+            else np.zeros((0, 4, 4))
+
+    def _refined_pose(self, j: int) -> np.ndarray:
+        """Frame j's refined pose (:meth:`refined_poses`)."""
+        if j == 0:
+            return self.poses[0]
+        if j in self._last_anchor:
+            return self._last_anchor[j]
+        ref, then = self._posed_on[j]
+        latest = self._last_anchor.get(ref, then)
+        return self.poses[j] if latest is then else latest @ geometry.inverse(then) @ self.poses[j]
+
+    def settled(self) -> int:
+        """How many of the first frames have a refined pose (:meth:`refined_poses`) that can no
+        longer change: a frame up to the current reference (a later frame may still become a
+        reference) whose anchor (its own if it became a reference, else its reference's) is not
+        one the window can still refine (a keyframe of the window but its oldest)."""
+        open_anchors = set(self._window[1:]) if self.policy.window > 1 else set()
+        n = self._settled
+        while n < len(self.poses) and n <= self._ref:
+            if (n if n in self._last_anchor else self._posed_on[n][0]) in open_anchors:
+                break
+            n += 1
+        self._settled = n
+        return n
 
     def result(self) -> "Track":
         """The :class:`Track` of the frames added so far."""
-        P = np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
+        refined = self.refined_poses()
+        P = refined if self.policy.poses == "refined" else np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
         rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
             else np.zeros((0, 4, 4))
         return Track(P, rel, np.asarray(self.inlier_ratio), np.asarray(self.valid, bool),
-                     np.asarray(self.references, int), self.refined_poses())
+                     np.asarray(self.references, int), refined)
 
 
 def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,

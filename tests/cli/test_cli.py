@@ -392,6 +392,33 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
     assert r3.exit_code != 0 and "try --delta-unit f" in r3.output
 
 
+def test_cli_refined_poses_are_the_librarys(tmp_path, synth_seq):
+    """`jaxvo run --poses refined` writes the poses refined in hindsight, a line per frame in order
+    (each once it is final, the rest at the end), exactly those of the library's
+    track(..., policy=TrackConfig(poses="refined")); its header records the choice, so that
+    `--config TRAJ` reruns it."""
+    import jax
+
+    from jaxvo.config import Config, TrackConfig
+    from jaxvo.data.tum import TumSequence
+    from jaxvo.tracking.odometry import track
+
+    traj, again = tmp_path / "t.txt", tmp_path / "again.txt"
+    r = _invoke(["run", synth_seq, "--poses", "refined", "--max-frames", 40, "--seed", 1, "--out", traj,
+                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    seq = TumSequence(synth_seq, camera=DEFAULT.at_level(2), max_frames=40)
+    tr = track((seq.frame(i) for i in range(len(seq))), seq.camera, Config(), jax.random.key(1),
+               policy=TrackConfig(poses="refined"))
+    stamps, poses = read_tum_trajectory(traj)
+    np.testing.assert_allclose(stamps, seq.timestamps, atol=1e-6)
+    np.testing.assert_allclose(poses, tr.poses, atol=2e-6)
+    assert '"poses": "refined"' in traj.read_text()
+    r = _invoke(["run", synth_seq, "--config", traj, "--out", again, "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert read_tum_trajectory(again)[1].tolist() == poses.tolist()
+
+
 # ----------------------------------------------------------------------------- demo
 
 DEMO_FRAMES = 12

@@ -392,3 +392,27 @@ def test_refined_poses_drift_less_than_the_tracked_ones(crowd):
         odo = _run(frames, TrackConfig(), seed=seed)
         tracked, refined = ate(np.stack(odo.poses)), ate(odo.refined_poses())
         assert refined < tracked, (seed, refined, tracked)
+
+
+def test_settled_refined_poses_never_move_and_become_track_poses(crowd):
+    """TrackConfig(poses="refined"): each step says how many of the first frames are settled, and
+    gives the refined poses from the previous step's count on. A settled pose is the final one,
+    bitwise (the end's Track.poses, which are then the refined poses); the count never goes back,
+    and it trails the frames by a bounded lag, so a writer of the lines does not wait for the end."""
+    seq, frames = crowd
+    odo = Odometry(CAM, key=jax.random.PRNGKey(2), policy=TrackConfig(poses="refined"))
+    steps = [odo.add(f) for f in frames[:80]][1:]
+    tr = odo.result()
+    np.testing.assert_array_equal(tr.poses, tr.refined)
+    assert not np.array_equal(tr.poses, np.stack(odo.poses))   # the window moved some of them
+    previous = 1
+    for step in steps:
+        assert previous <= step.settled <= step.frame + 1 and sorted(step.refined) == list(range(previous, step.frame + 1))
+        for i in range(previous, step.settled):
+            np.testing.assert_array_equal(step.refined[i], tr.poses[i])
+        previous = step.settled
+    lag = max(s.frame + 1 - s.settled for s in steps)
+    assert 1 <= lag <= 30, lag
+    tracked = Odometry(CAM, key=jax.random.PRNGKey(2), policy=TrackConfig())
+    plain = [tracked.add(f) for f in frames[:5]][1:]
+    assert [s.settled for s in plain] == [2, 3, 4, 5] and all(s.refined is None for s in plain)
