@@ -27,7 +27,7 @@ class Track(NamedTuple):
     reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
     refined: (N, 4, 4) float64 T_world_cam refined in hindsight (:meth:`Odometry.refined_poses`):
     each frame on the latest anchor of the reference it was posed on, a frame that became a
-    reference at its anchor. ``poses`` are the poses as tracked, returned frame by frame.
+    reference at its anchor.
     """
     poses: np.ndarray
     relative: np.ndarray
@@ -801,10 +801,9 @@ class Odometry:
         the frames posed on r later but not frame j as returned. Here frame j is posed on r's
         latest anchor instead: ``A_latest @ inv(A_then) @ T_world_j``, the same pose relative to
         its reference; a frame that became a reference is at its own latest anchor (smoothed,
-        fused or refined: the pose later frames chain from). Where nothing moved (frame 0, a
-        reference whose anchor never changed) it is the pose as tracked, bitwise. A frame's
-        refined pose changes no more once its reference has left the window or is its oldest
-        keyframe."""
+        fused or refined: the pose later frames chain from). A frame posed on an anchor that never
+        moved keeps its pose as tracked, bitwise, and frame 0 its given pose. The first
+        :meth:`settled` frames' refined poses change no more."""
         return np.stack([self._refined_pose(j) for j in range(len(self.poses))]) if self.poses \
             else np.zeros((0, 4, 4))
 
