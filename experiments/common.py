@@ -443,18 +443,11 @@ def add_poses_arg(ap) -> None:
                          "refined in hindsight (Track.refined: each frame on its reference's latest anchor)")
 
 
-def relative_motions(poses) -> np.ndarray:
-    """(N-1, 4, 4) T_cur_ref of consecutive frames of (N, 4, 4) camera-to-world ``poses``."""
-    from jaxvo import geometry
-
-    P = np.asarray(poses, np.float64)
-    return np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
-        else np.zeros((0, 4, 4))
-
-
 def track_relative(tr, poses: str = "tracked") -> np.ndarray:
     """A :class:`jaxvo.tracking.odometry.Track`'s relative motions from ``poses`` (:data:`POSES`)."""
-    return tr.relative if poses == "tracked" else relative_motions(tr.refined)
+    from jaxvo import geometry
+
+    return tr.relative if poses == "tracked" else geometry.consecutive_motions(tr.refined)
 
 
 def evaluate(seq: datasets.TumSequence, relative) -> Dict[str, object]:

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = [
+    "consecutive_motions",
     "skew", "vee", "hat", "exp", "log", "exp_so3", "log_so3",
     "compose", "inverse", "matrix_from_quat", "quat_from_matrix",
     "transform_from_quat_trans", "quat_trans_from_transform",
@@ -209,6 +210,15 @@ def inverse(T_a_b):
     t = -(Rt @ T[..., :3, 3:4])
     top = xp.concatenate([Rt, t], -1)
     return xp.concatenate([top, T[..., 3:4, :]], -2)
+
+
+def consecutive_motions(T_world_cam) -> np.ndarray:
+    """(N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1) of (N, 4, 4)
+    camera-to-world poses: ``inv(T_world_{i+1}) @ T_world_i`` (empty for fewer than two poses)."""
+    P = np.asarray(T_world_cam, np.float64)
+    if len(P) < 2:
+        return np.zeros((0, 4, 4))
+    return np.stack([inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)])
 
 
 def transform_points(T_a_b, P_b):

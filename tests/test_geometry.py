@@ -341,3 +341,16 @@ def test_fit_motion_exact_on_screw_motion_and_averages_noise():
         raw.append(np.linalg.norm(G.log(G.inverse(truth) @ noisy[2])))
         fit.append(np.linalg.norm(G.log(G.inverse(truth) @ G.fit_motion(t, noisy, 3))))
     assert np.mean(fit) < 0.75 * np.mean(raw)
+
+
+def test_consecutive_motions_are_each_pairs_T_cur_ref():
+    """consecutive_motions: inv(T_world_{i+1}) @ T_world_i per pair (against numpy's general
+    inverse), float64, none for fewer than two poses."""
+    rng = np.random.default_rng(4)
+    P = np.tile(np.eye(4), (5, 1, 1))
+    P[:, :3, :3] = Rotation.random(5, random_state=4).as_matrix()
+    P[:, :3, 3] = rng.normal(size=(5, 3))
+    rel = G.consecutive_motions(P)
+    assert rel.shape == (4, 4, 4) and rel.dtype == np.float64
+    np.testing.assert_allclose(rel, [np.linalg.inv(P[i + 1]) @ P[i] for i in range(4)], atol=1e-12)
+    assert G.consecutive_motions(P[:1]).shape == (0, 4, 4)

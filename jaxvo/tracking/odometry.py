@@ -835,8 +835,7 @@ class Odometry:
         """The :class:`Track` of the frames added so far."""
         refined = self.refined_poses()
         P = refined if self.policy.poses == "refined" else np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
-        rel = np.stack([geometry.inverse(P[i + 1]) @ P[i] for i in range(len(P) - 1)]) if len(P) > 1 \
-            else np.zeros((0, 4, 4))
+        rel = geometry.consecutive_motions(P)
         return Track(P, rel, np.asarray(self.inlier_ratio), np.asarray(self.valid, bool),
                      np.asarray(self.references, int), refined)
 
