@@ -419,6 +419,35 @@ def test_cli_refined_poses_are_the_librarys(tmp_path, synth_seq):
     assert read_tum_trajectory(again)[1].tolist() == poses.tolist()
 
 
+def test_an_interrupted_refined_run_writes_every_finished_frame(tmp_path, synth_seq):
+    """Ctrl-C during a run with TrackConfig(poses="refined"): the lines not settled yet are written
+    as they stand, so the trajectory holds every finished frame, in order: the library's refined
+    poses of those frames."""
+    import jax
+
+    from jaxvo.config import Config, TrackConfig
+    from jaxvo.data.tum import TumSequence
+    from jaxvo.pipelines.run import run_sequence
+    from jaxvo.tracking.odometry import Odometry
+
+    seq = TumSequence(synth_seq, camera=DEFAULT.at_level(2), max_frames=30)
+    policy, out = TrackConfig(poses="refined"), tmp_path / "t.txt"
+
+    def ctrl_c(step):
+        if step.frame == 16:
+            assert step.settled < 17   # some lines are still open
+            raise KeyboardInterrupt
+
+    result = run_sequence(seq, Config(), 1, out=out, on_pair=ctrl_c, policy=policy)
+    stamps, poses = read_tum_trajectory(out)
+    assert result.interrupted and len(stamps) == 17 and np.all(np.diff(stamps) > 0)
+    odo = Odometry(seq.camera, Config(), jax.random.key(1), policy)
+    for i in range(17):
+        odo.add(seq.frame(i))
+    np.testing.assert_allclose(poses, odo.refined_poses(), atol=2e-6)
+    np.testing.assert_array_equal(result.poses, odo.refined_poses())
+
+
 # ----------------------------------------------------------------------------- demo
 
 DEMO_FRAMES = 12
