@@ -35,7 +35,7 @@ The trajectory file starts with '#' lines naming jaxvo's version, the method, se
 full config and keyframe policy (JSON), the machine (CPU, usable cores, jax/jaxlib) and the
 reader's settings (jaxvo run SEQ --config TRAJ reruns it bitwise on the same machine, and
 says what differs on another); it is written and flushed one line per frame to OUT.partial while
-the run goes on (the first frame at the identity) and renamed to OUT when complete, so a run
+the run goes on (the first frame at the identity; with --poses refined each line once it is final) and renamed to OUT when complete, so a run
 that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in OUT.partial and
 never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was done and
 exits with code 130. Outputs that would replace or land inside an input are refused
