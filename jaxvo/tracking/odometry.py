@@ -284,7 +284,7 @@ class Odometry:
         """Add the next frame; returns its :class:`TrackStep` (pose, estimate, reference)."""
         pair = self.prepare(frame)
         if pair is None:
-            return TrackStep(0, -1, None, self._first, True, None)
+            return TrackStep(0, -1, None, self._first, True, None, settled=1)
         j = len(self.poses)
         return self.finish(pair, self._estimate("track", self._ref, j, pair.key, pair.init, pair.weights))
 
