@@ -436,18 +436,38 @@ def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray
 POSES = ("tracked", "refined")
 
 
-def add_poses_arg(ap) -> None:
-    """The ``--poses`` option of the scripts that evaluate the default tracking."""
-    ap.add_argument("--poses", choices=POSES, default="tracked",
-                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them) or "
-                         "refined in hindsight (Track.refined: each frame on its reference's latest anchor)")
+def add_poses_arg(ap, both: bool = False) -> None:
+    """The ``--poses`` option of the scripts that evaluate the default tracking; with ``both``,
+    also "both": each run evaluated both ways (:func:`pose_kinds`, :func:`pose_label`)."""
+    ap.add_argument("--poses", choices=POSES + (("both",) if both else ()), default="tracked",
+                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them), "
+                         "refined in hindsight (Track.refined: each frame on its reference's latest anchor)"
+                         + (", or both: a second row per run's name, '<name>, refined', from the same runs"
+                            if both else ""))
 
 
-def track_relative(tr, poses: str = "tracked") -> np.ndarray:
-    """A :class:`jaxvo.tracking.odometry.Track`'s relative motions from ``poses`` (:data:`POSES`)."""
+def pose_kinds(choice: str) -> tuple:
+    """The kinds of :data:`POSES` that ``--poses`` ``choice`` evaluates."""
+    return POSES if choice == "both" else (choice,)
+
+
+def pose_label(name: str, kind: str, choice: str) -> str:
+    """The row name of run ``name``'s ``kind`` of poses: ``name``, or ``name, refined`` for the
+    refined rows when ``--poses both``."""
+    return f"{name}, refined" if choice == "both" and kind == "refined" else name
+
+
+def track_poses(tr, kind: str = "tracked") -> np.ndarray:
+    """A :class:`jaxvo.tracking.odometry.Track`'s (N, 4, 4) poses of ``kind`` (:data:`POSES`):
+    ``Track.poses`` (as the policy's ``TrackConfig.poses`` has them) or ``Track.refined``."""
+    return tr.poses if kind == "tracked" else tr.refined
+
+
+def track_relative(tr, kind: str = "tracked") -> np.ndarray:
+    """A :class:`jaxvo.tracking.odometry.Track`'s relative motions of :func:`track_poses`."""
     from jaxvo import geometry
 
-    return tr.relative if poses == "tracked" else geometry.consecutive_motions(tr.refined)
+    return tr.relative if kind == "tracked" else geometry.consecutive_motions(tr.refined)
 
 
 def evaluate(seq: datasets.TumSequence, relative) -> Dict[str, object]:

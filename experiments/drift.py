@@ -52,9 +52,7 @@ def parse_args(argv=None):
     ap.add_argument("--policy", default=None,
                     help="JSON object of jaxvo.TrackConfig fields changed in both trackings (the single reference "
                          "is the same with window 1), e.g. '{\"second_opinion\": 0}'")
-    ap.add_argument("--poses", choices=common.POSES + ("both",), default="tracked",
-                    help="evaluate the poses as tracked (default: as jaxvo run writes them), refined in hindsight "
-                         "(Track.refined), or both (rows '<policy>, refined' from the same runs)")
+    common.add_poses_arg(ap, both=True)
     ap.add_argument("--out", default=str(common.RESULTS / "drift" / "drift.md"), help="markdown output (JSON beside)")
     args = ap.parse_args(argv)
     try:
@@ -119,11 +117,9 @@ def _track_all(frames, camera, seed, changes=None, poses: str = "tracked"):
                 t0 = time.perf_counter()
             odo.add(f)
         dt = (time.perf_counter() - t0) / max(1, len(frames) - 10) if t0 else float("nan")
-        held = int(len(odo.valid) - sum(odo.valid))
-        if poses in ("tracked", "both"):
-            out[name] = (np.stack(odo.poses), held, dt)
-        if poses in ("refined", "both"):
-            out[name if poses == "refined" else f"{name}, refined"] = (odo.refined_poses(), held, dt)
+        tr = odo.result()
+        for kind in common.pose_kinds(poses):
+            out[common.pose_label(name, kind, poses)] = (common.track_poses(tr, kind), int(np.sum(~tr.valid)), dt)
     return out
 
 

@@ -63,10 +63,7 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument("--perturb", type=int, default=1,
                     help="inputs per seed: the frames as read, then K - 1 draws of +-0.25 grey-level luminance "
                          "noise (default 1: as read)")
-    ap.add_argument("--poses", choices=common.POSES + ("both",), default="tracked",
-                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them), refined "
-                         "in hindsight (Track.refined), or both: a second row per variant, '<name>, refined', "
-                         "from the same runs")
+    common.add_poses_arg(ap, both=True)
     ap.add_argument("--out", default=str(common.RESULTS / "levers" / "levers.md"), help="markdown output")
     return ap.parse_args(argv)
 
@@ -128,9 +125,8 @@ def main(argv=None):
         seq = common.open_sequence(path, max_frames=args.max_frames)
         frames = common.load_frames(seq)
         common.log(f"[levers] {seq.name}: {len(frames)} frames")
-        kinds = common.POSES if args.poses == "both" else (args.poses,)
-        labels = {(name, kind): name if kind == "tracked" or args.poses != "both" else f"{name}, refined"
-                  for name in variants for kind in kinds}
+        kinds = common.pose_kinds(args.poses)
+        labels = {(name, kind): common.pose_label(name, kind, args.poses) for name in variants for kind in kinds}
         times = {label: [] for label in labels.values()}
         cv = [common.run_method("opencv-rgb", frames, seq.camera)["seconds"]]
         results = {label: [] for label in labels.values()}

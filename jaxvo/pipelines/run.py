@@ -245,10 +245,10 @@ class RunResult:
 class _Recorder:
     """What a run keeps of one sequence: the trajectory written as it grows (after the ``#``
     header of :func:`run_header`), optional outlier masks, poses, inlier ratios and timings.
-    ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult. With
-    ``TrackConfig.poses`` "refined" the trajectory holds the refined poses: each line written once
-    the step says it is final (``TrackStep.settled``), the frames still open written at
-    :meth:`close` as they stand then (the end of the run, or Ctrl-C)."""
+    ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult. A line is
+    written once the step says it is final (``TrackStep.settled``: at once with ``TrackConfig.poses``
+    "tracked"; with "refined" a few frames later, from ``TrackStep.refined``), the frames still open
+    at :meth:`close` as they stand then (the end of the run, or Ctrl-C)."""
 
     def __init__(self, seq: TumSequence, config, seed: int, out=None, save_masks=None,
                  on_pair: Optional[Callable] = None, pbar=None, policy=None):
@@ -266,8 +266,7 @@ class _Recorder:
                 raise DatasetError(f"{self.mask_dir}: cannot create mask folder ({e.strerror or e})") from None
         header = "\n".join(run_header(config, policy if policy is not None else TrackConfig(), seed, seq) + [HEADER])
         self.writer = TrajectoryWriter(out, header=header) if out is not None else None
-        self.refined = policy is not None and policy.poses == "refined"
-        self.open_poses: dict = {}    # refined: frame -> pose, the frames not settled yet
+        self.open_poses: dict = {}    # frame -> pose, the frames not settled yet
         self.poses = [np.eye(4)]
         self.ratios: List[float] = []
         self.valids: List[bool] = []
@@ -280,10 +279,9 @@ class _Recorder:
             self.writer.write_first(self.stamps[0])
 
     def close(self) -> None:
-        if self.refined:
-            for i in sorted(self.open_poses):
-                self._line(i, self.open_poses[i])
-            self.open_poses = {}
+        for i in sorted(self.open_poses):
+            self._line(i, self.open_poses[i])
+        self.open_poses = {}
         if self.writer is not None:
             self.writer.close()
         if self.mask_dir is not None:
@@ -303,12 +301,10 @@ class _Recorder:
         i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
         self.ratios.append(float(est.inlier_ratio))
         self.valids.append(bool(step.valid))
-        if self.refined:   # the frames this step settles, in order; the others wait
-            self.open_poses.update(step.refined)
-            for k in range(len(self.poses), step.settled):
-                self._line(k, self.open_poses.pop(k))
-        else:
-            self._line(i + 1, pose)
+        # the frames this step settles, in order; the others wait
+        self.open_poses.update({step.frame: pose} if step.refined is None else step.refined)
+        for k in range(len(self.poses), step.settled):
+            self._line(k, self.open_poses.pop(k))
         if self.mask_dir is not None:
             m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
             name = mask_name(self.stamps[ref], self.stamps[i + 1])
