@@ -430,44 +430,44 @@ def relative_errors(seq: datasets.TumSequence, relative) -> Dict[str, np.ndarray
     return {"trans": t_err, "rot": r_err}
 
 
-#: The poses a tracking script evaluates (``--poses``): ``tracked``, as returned frame by frame
-#: (``Track.poses``, the trajectory ``jaxvo run`` writes), or ``refined``, refined in hindsight
-#: (``Track.refined``, :meth:`jaxvo.Odometry.refined_poses`).
+#: The poses a tracking script evaluates (``--poses``): ``refined``, refined in hindsight
+#: (``Track.refined``, :meth:`jaxvo.Odometry.refined_poses`; the default ``TrackConfig.poses``, the
+#: trajectory ``jaxvo run`` writes), or ``tracked``, as returned frame by frame (``Track.tracked``).
 POSES = ("tracked", "refined")
 
 
 def add_poses_arg(ap, both: bool = False) -> None:
     """The ``--poses`` option of the scripts that evaluate the default tracking; with ``both``,
     also "both": each run evaluated both ways (:func:`pose_kinds`, :func:`pose_label`)."""
-    ap.add_argument("--poses", choices=POSES + (("both",) if both else ()), default="tracked",
-                    help="evaluate the poses as tracked (default: Track.poses, as jaxvo run writes them), "
-                         "refined in hindsight (Track.refined: each frame on its reference's latest anchor)"
-                         + (", or both: a second row per run's name, '<name>, refined', from the same runs"
+    ap.add_argument("--poses", choices=POSES + (("both",) if both else ()), default="refined",
+                    help="evaluate the poses refined in hindsight (default: Track.refined, each frame on its "
+                         "reference's latest anchor, as jaxvo run writes them) or as tracked (Track.tracked)"
+                         + (", or both: a second row per run's name, '<name>, tracked', from the same runs"
                             if both else ""))
 
 
 def pose_kinds(choice: str) -> tuple:
-    """The kinds of :data:`POSES` that ``--poses`` ``choice`` evaluates."""
-    return POSES if choice == "both" else (choice,)
+    """The kinds of :data:`POSES` that ``--poses`` ``choice`` evaluates (refined first)."""
+    return ("refined", "tracked") if choice == "both" else (choice,)
 
 
 def pose_label(name: str, kind: str, choice: str) -> str:
-    """The row name of run ``name``'s ``kind`` of poses: ``name``, or ``name, refined`` for the
-    refined rows when ``--poses both``."""
-    return f"{name}, refined" if choice == "both" and kind == "refined" else name
+    """The row name of run ``name``'s ``kind`` of poses: ``name``, or ``name, tracked`` for the
+    tracked rows when ``--poses both``."""
+    return f"{name}, tracked" if choice == "both" and kind == "tracked" else name
 
 
-def track_poses(tr, kind: str = "tracked") -> np.ndarray:
+def track_poses(tr, kind: str = "refined") -> np.ndarray:
     """A :class:`jaxvo.tracking.odometry.Track`'s (N, 4, 4) poses of ``kind`` (:data:`POSES`):
-    ``Track.poses`` (as the policy's ``TrackConfig.poses`` has them) or ``Track.refined``."""
-    return tr.poses if kind == "tracked" else tr.refined
+    ``Track.refined`` or ``Track.tracked``, whatever the policy's ``TrackConfig.poses``."""
+    return tr.refined if kind == "refined" else tr.tracked
 
 
-def track_relative(tr, kind: str = "tracked") -> np.ndarray:
+def track_relative(tr, kind: str = "refined") -> np.ndarray:
     """A :class:`jaxvo.tracking.odometry.Track`'s relative motions of :func:`track_poses`."""
     from jaxvo import geometry
 
-    return tr.relative if kind == "tracked" else geometry.consecutive_motions(tr.refined)
+    return geometry.consecutive_motions(track_poses(tr, kind))
 
 
 def evaluate(seq: datasets.TumSequence, relative) -> Dict[str, object]:

@@ -102,10 +102,10 @@ def drift_stats(stamps, gt, est):
     return out
 
 
-def _track_all(frames, camera, seed, changes=None, poses: str = "tracked"):
+def _track_all(frames, camera, seed, changes=None, poses: str = "refined"):
     """{policy: (poses (N, 4, 4), held frames, s per frame after the first 10)} for both policies
-    (:func:`_policies` of ``changes``); ``poses``: as tracked or refined in hindsight (``common.POSES``),
-    or both (each policy's refined poses then under "<policy>, refined")."""
+    (:func:`_policies` of ``changes``); ``poses``: refined in hindsight or as tracked (``common.POSES``),
+    or both (each policy's tracked poses then under "<policy>, tracked")."""
     import jax
     from jaxvo.tracking.odometry import Odometry
     out = {}

@@ -259,7 +259,7 @@ def true_masks(folder, seq: TumSequence) -> list:
 
 
 def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: Optional[TrackConfig] = None,
-                config: Optional[dict] = None, odometry=None, poses: str = "tracked") -> dict:
+                config: Optional[dict] = None, odometry=None, poses: str = "refined") -> dict:
     """jaxvo's default odometry (``jaxvo.track``, ``TrackConfig()``) along the sequence, in the same
     form as :func:`run_one`. Its moving mask (on the reference of each estimate) is the estimate's
     outliers not hidden in the current frame plus what the segmentation marked dynamic; seconds per frame include the map updates.
@@ -305,7 +305,7 @@ def run_default(seq: TumSequence, frames: list, true_masks: list, key, policy: O
 
 
 def run_one(seq: TumSequence, frames: list, true_masks: list, method: str, key,
-            policy: Optional[TrackConfig] = None, config: Optional[dict] = None, poses: str = "tracked") -> dict:
+            policy: Optional[TrackConfig] = None, config: Optional[dict] = None, poses: str = "refined") -> dict:
     """Every consecutive pair with one method: relative motions, timings, inlier ratios, pooled mask counts.
     config: Config fields changed from their defaults (every method). poses: the default's, as
     tracked or refined in hindsight (:func:`run_default`)."""

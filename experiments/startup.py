@@ -108,8 +108,11 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
 
 def _command(entry: str, seq: Path, method: str, out: Path) -> List[str]:
     if entry == "cli":
+        # --poses tracked: frame 1's line is written as soon as it is estimated (the default, refined,
+        # writes it once settled, a few frames later: the end of a 3-frame run); the programs and
+        # the estimates are the same, the poses are a host-side choice
         return [sys.executable, "-m", "jaxvo", "run", str(seq), "--out", str(out), "--max-frames", str(FRAMES),
-                "--no-progress", "--force"] + METHOD_ARGS[method]
+                "--no-progress", "--force", "--poses", "tracked"] + METHOD_ARGS[method]
     return [sys.executable, "-c", _LIBRARY, str(seq), method, entry]
 
 
@@ -138,7 +141,7 @@ def _child_env(folder: Path, t0: float) -> dict:
 def run_once(entry: str, seq: Path, method: str, folder: Path, poll_s: float = 0.005) -> dict:
     """One new process of ``entry``: its wall time, CPU time (user + sys) and first-pose time (s),
     all from the moment the process is started. ``cli``'s first pose is when its trajectory (written
-    under its ``.partial`` name and flushed a pose at a time) first holds frame 1's pose, watched
+    under its ``.partial`` name and flushed a pose at a time, ``--poses tracked``) first holds frame 1's pose, watched
     every ``poll_s``; the library scripts report theirs (``track``: frame 1's callback)."""
     out = folder / "traj.txt"
     cmd = _command(entry, seq, method, out)
@@ -469,7 +472,7 @@ def write(args, argv, seq: Path, rows: List[dict], stages: List[dict], codegen: 
     lines += [f"Sequence: `{seq.name}`, its first {FRAMES} frames. Each entry point in its own new process, "
               "whole (interpreter start, imports, reading, the programs loaded or compiled, the poses, writing "
               "and exit), in a fresh cache folder (`JAXVO_CACHE_DIR`) per pass: `cli`: `jaxvo run SEQ "
-              f"--max-frames {FRAMES}` (the default tracking; trajectory written and evaluated); `estimate_motion`: "
+              f"--max-frames {FRAMES} --poses tracked` (the default tracking, each line written as it is estimated; trajectory written and evaluated); `estimate_motion`: "
               "`python -c` importing jaxvo and calling `jaxvo.estimate_motion` once on frames 0 and 1; `track`: "
               f"`python -c` running `jaxvo.track` (`Odometry`) on {FRAMES} frames. `cold`: an empty folder (a new "
               f"machine); `warm`: the folder the cold run filled (per pass, the median of "

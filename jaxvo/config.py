@@ -331,20 +331,20 @@ class TrackConfig(NamedTuple):
     #: depth moved to the colour image's time (:mod:`jaxvo.tracking.depth_time`), with the camera's
     #: motion between it and the posed frame next to it. A lever, off: docs/decisions/depth-time.md.
     retime_depth: Annotated[bool, flag()] = False
-    #: The poses ``Track.poses`` and ``jaxvo run``'s trajectory hold: "tracked", each frame's pose
-    #: as it was returned (``TrackStep.T_world_cur``; the trajectory gets a line per frame as it is
-    #: tracked), or "refined", refined in hindsight (:meth:`jaxvo.Odometry.refined_poses`: each
-    #: frame on its reference's latest anchor; the trajectory gets a frame's line once its refined
-    #: pose can no longer change, ``TrackStep.settled``, a few frames later, and the rest at the
-    #: end). docs/decisions/window.md.
-    poses: Annotated[str, choice("tracked", "refined")] = "tracked"
+    #: The poses ``Track.poses`` and ``jaxvo run``'s trajectory hold: "refined" (default), refined
+    #: in hindsight (:meth:`jaxvo.Odometry.refined_poses`: each frame on its reference's latest
+    #: anchor; the trajectory gets a frame's line once its refined pose can no longer change,
+    #: ``TrackStep.settled``, a few frames later, and the rest at the end), or "tracked", each
+    #: frame's pose as it was returned (``TrackStep.T_world_cur``; a line per frame as it is
+    #: tracked; :meth:`frame_to_frame` and :meth:`keyframes`). docs/decisions/window.md.
+    poses: Annotated[str, choice("tracked", "refined")] = "refined"
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
         """The paper's chaining: every frame against the one before it, no segmentation."""
         return cls(**{"max_gap": 1, "lag": 0, "segment": False, "max_step": 0.1, "max_step_deg": 10.0, "coast": 0,
                       "restart": 4, "catch_up": False, "retry": False, "window": 1, "refresh": False,
-                      **changes})
+                      "poses": "tracked", **changes})
 
     @classmethod
     def keyframes(cls, max_gap: int = 6, lag: Optional[int] = None, **changes) -> "TrackConfig":
@@ -352,7 +352,7 @@ class TrackConfig(NamedTuple):
         no segmentation unless ``segment=True`` is passed."""
         return cls(**{"max_gap": max_gap, "lag": max_gap // 2 if lag is None else lag, "segment": False,
                       "max_step": 0.1, "max_step_deg": 10.0, "restart": 4 * max_gap, "catch_up": False,
-                      "retry": False, "window": 1, "refresh": False, **changes})
+                      "retry": False, "window": 1, "refresh": False, "poses": "tracked", **changes})
 
     def to_json(self) -> str:
         """Every field as one line of JSON; :meth:`from_json` reads it back exactly."""

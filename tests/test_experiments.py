@@ -696,9 +696,9 @@ def test_drift_quick_with_a_policy_change(tmp_path):
     text = out.read_text()
     assert "--policy" in text and "| synthetic crowd 40 frames 160x120 | window | 1 |" in text
     assert "| synthetic crowd 40 frames 160x120 | single | 1 |" in text
-    assert "| synthetic crowd 40 frames 160x120 | window, refined | 1 |" in text
+    assert "| synthetic crowd 40 frames 160x120 | window, tracked | 1 |" in text
     rows = json.loads(out.with_suffix(".json").read_text())["rows"]
-    assert {r["policy"] for r in rows} == {"window", "single", "window, refined", "single, refined"}
+    assert {r["policy"] for r in rows} == {"window", "single", "window, tracked", "single, tracked"}
     assert all(np.isfinite(r["ate"]) for r in rows)
     # the single-thread flag is for the script's own process and its workers, not its caller's
     assert os.environ.get("XLA_FLAGS") == flags

@@ -181,7 +181,7 @@ def main(argv=None):
               "after a warm-up; `/ OpenCV`: the mean against OpenCV rgb's mean over the same pairs, timed "
               "between the passes. `estimates`: `estimate_motion` calls per frame. ATE, RPE 1 s: mean over the "
               "runs (seeds x inputs) [range], of the poses "
-              f"{'as tracked and, in the rows named refined, refined in hindsight (Track.refined)' if args.poses == 'both' else args.poses}"
+              f"{'refined in hindsight (Track.refined) and, in the rows named tracked, as tracked (Track.tracked)' if args.poses == 'both' else args.poses}"
               ".", ""]
     lines += common.md_table(rows, [("sequence", "sequence", ""), ("variant", "variant", ""),
                                     ("mean ms", "mean_ms", ".1f"), ("median ms", "median_ms", ".1f"),

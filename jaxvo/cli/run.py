@@ -35,7 +35,8 @@ The trajectory file starts with '#' lines naming jaxvo's version, the method, se
 full config and keyframe policy (JSON), the machine (CPU, usable cores, jax/jaxlib) and the
 reader's settings (jaxvo run SEQ --config TRAJ reruns it bitwise on the same machine, and
 says what differs on another); it is written and flushed one line per frame to OUT.partial while
-the run goes on (the first frame at the identity; with --poses refined each line once it is final) and renamed to OUT when complete, so a run
+the run goes on (the first frame at the identity; each line once its refined pose is final, a few
+frames later, or at once with --poses tracked) and renamed to OUT when complete, so a run
 that fails, is interrupted (Ctrl-C) or killed keeps every finished frame in OUT.partial and
 never leaves a half trajectory under OUT; Ctrl-C prints the summary of what was done and
 exits with code 130. Outputs that would replace or land inside an input are refused
@@ -139,7 +140,7 @@ A batched pose equals the sequence's pose alone up to float rounding of the batc
 @click.option("--poses", type=click.Choice(["tracked", "refined"]), default=None,
               help="The trajectory's poses: as tracked, a line per frame as it goes; or refined in hindsight, "
                    "each frame on the latest pose of its keyframe, a line once it is final (a few frames "
-                   "later; the rest at the end or at Ctrl-C) [default: tracked].")
+                   "later; the rest at the end or at Ctrl-C) [default: refined; tracked with --frame-to-frame].")
 @click.option("--frame-to-frame", is_flag=True,
               help="The paper's chaining: every frame against the previous one, no segmentation. With "
                    "--config '{\"prior_candidate\": \"raw\", ...}' or --paper, the published algorithm.")

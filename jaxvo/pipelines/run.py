@@ -246,8 +246,8 @@ class _Recorder:
     """What a run keeps of one sequence: the trajectory written as it grows (after the ``#``
     header of :func:`run_header`), optional outlier masks, poses, inlier ratios and timings.
     ``step(TrackStep)`` records one frame; ``result(interrupted)`` gives the RunResult. A line is
-    written once the step says it is final (``TrackStep.settled``: at once with ``TrackConfig.poses``
-    "tracked"; with "refined" a few frames later, from ``TrackStep.refined``), the frames still open
+    written once the step says it is final (``TrackStep.settled``: with ``TrackConfig.poses``
+    "refined" a few frames later, from ``TrackStep.refined``; with "tracked" at once), the frames still open
     at :meth:`close` as they stand then (the end of the run, or Ctrl-C)."""
 
     def __init__(self, seq: TumSequence, config, seed: int, out=None, save_masks=None,

@@ -21,13 +21,15 @@ class Track(NamedTuple):
     """Result of :func:`track`.
 
     poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default):
-    as tracked (``TrackConfig.poses`` "tracked") or ``refined`` ("refined").
+    ``refined`` (``TrackConfig.poses`` "refined", the default) or ``tracked`` ("tracked").
     relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1), from the poses.
     inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed and was held).
     reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
     refined: (N, 4, 4) float64 T_world_cam refined in hindsight (:meth:`Odometry.refined_poses`):
     each frame on the latest anchor of the reference it was posed on, a frame that became a
     reference at its anchor.
+    tracked: (N, 4, 4) float64 T_world_cam as tracked: each frame's pose as :meth:`Odometry.add`
+    returned it (``TrackStep.T_world_cur``).
     """
     poses: np.ndarray
     relative: np.ndarray
@@ -35,6 +37,7 @@ class Track(NamedTuple):
     valid: np.ndarray
     reference: np.ndarray
     refined: Optional[np.ndarray] = None
+    tracked: Optional[np.ndarray] = None
 
 
 class TrackStep(NamedTuple):
@@ -50,9 +53,9 @@ class TrackStep(NamedTuple):
     and the pose was held (see :class:`TrackConfig`).
     static_mask: (H, W) bool, the reference pixels the segmentation trusted as static for
     this estimate (all True without segmentation).
-    settled: frames [0, settled) hold their final pose in ``Track.poses`` (every frame so far
-    with ``TrackConfig.poses`` "tracked"; with "refined", those whose refined pose can no longer
-    change, :meth:`Odometry.settled`).
+    settled: frames [0, settled) hold their final pose in ``Track.poses``: with
+    ``TrackConfig.poses`` "refined" (the default), those whose refined pose can no longer change
+    (:meth:`Odometry.settled`); with "tracked", every frame so far.
     refined: with ``TrackConfig.poses`` "refined", frame index -> (4, 4) float64 refined pose of
     the frames from the previous step's ``settled`` to this one (final below ``settled``, the
     others as they stand now); None with "tracked".
@@ -834,10 +837,11 @@ class Odometry:
     def result(self) -> "Track":
         """The :class:`Track` of the frames added so far."""
         refined = self.refined_poses()
-        P = refined if self.policy.poses == "refined" else np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
+        tracked = np.stack(self.poses) if self.poses else np.zeros((0, 4, 4))
+        P = refined if self.policy.poses == "refined" else tracked
         rel = geometry.consecutive_motions(P)
         return Track(P, rel, np.asarray(self.inlier_ratio), np.asarray(self.valid, bool),
-                     np.asarray(self.references, int), refined)
+                     np.asarray(self.references, int), refined, tracked)
 
 
 def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = None, key=None,

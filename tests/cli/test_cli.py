@@ -393,10 +393,10 @@ def test_cli_matches_library_track(tmp_path, synth_seq):
 
 
 def test_cli_refined_poses_are_the_librarys(tmp_path, synth_seq):
-    """`jaxvo run --poses refined` writes the poses refined in hindsight, a line per frame in order
-    (each once it is final, the rest at the end), exactly those of the library's
-    track(..., policy=TrackConfig(poses="refined")); its header records the choice, so that
-    `--config TRAJ` reruns it."""
+    """`jaxvo run` (no flag: the default --poses refined) writes the poses refined in hindsight, a
+    line per frame in order (each once it is final, the rest at the end), exactly those of the
+    library's track(..., policy=TrackConfig()); its header records the choice, so that
+    `--config TRAJ` reruns it; `--poses tracked` writes the poses as tracked (Track.tracked)."""
     import jax
 
     from jaxvo.config import Config, TrackConfig
@@ -404,19 +404,25 @@ def test_cli_refined_poses_are_the_librarys(tmp_path, synth_seq):
     from jaxvo.tracking.odometry import track
 
     traj, again = tmp_path / "t.txt", tmp_path / "again.txt"
-    r = _invoke(["run", synth_seq, "--poses", "refined", "--max-frames", 40, "--seed", 1, "--out", traj,
-                 "--no-progress"])
+    r = _invoke(["run", synth_seq, "--max-frames", 40, "--seed", 1, "--out", traj, "--no-progress"])
     assert r.exit_code == 0, r.output
     seq = TumSequence(synth_seq, camera=DEFAULT.at_level(2), max_frames=40)
     tr = track((seq.frame(i) for i in range(len(seq))), seq.camera, Config(), jax.random.key(1),
-               policy=TrackConfig(poses="refined"))
+               policy=TrackConfig())
     stamps, poses = read_tum_trajectory(traj)
     np.testing.assert_allclose(stamps, seq.timestamps, atol=1e-6)
-    np.testing.assert_allclose(poses, tr.poses, atol=2e-6)
+    np.testing.assert_allclose(poses, tr.refined, atol=2e-6)
+    assert not np.allclose(tr.refined, tr.tracked, atol=1e-5)   # the window moved some frames
     assert '"poses": "refined"' in traj.read_text()
     r = _invoke(["run", synth_seq, "--config", traj, "--out", again, "--no-progress"])
     assert r.exit_code == 0, r.output
     assert read_tum_trajectory(again)[1].tolist() == poses.tolist()
+    plain = tmp_path / "tracked.txt"
+    r = _invoke(["run", synth_seq, "--poses", "tracked", "--max-frames", 40, "--seed", 1, "--out", plain,
+                 "--no-progress"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_allclose(read_tum_trajectory(plain)[1], tr.tracked, atol=2e-6)
+    assert '"poses": "tracked"' in plain.read_text()
 
 
 def test_an_interrupted_refined_run_writes_every_finished_frame(tmp_path, synth_seq):

@@ -407,7 +407,8 @@ def test_settled_refined_poses_never_move_and_become_track_poses(crowd, window):
     steps = [odo.add(f) for f in frames[:80]][1:]
     tr = odo.result()
     np.testing.assert_array_equal(tr.poses, tr.refined)
-    assert not np.array_equal(tr.poses, np.stack(odo.poses))   # the window moved some of them
+    np.testing.assert_array_equal(tr.tracked, np.stack(odo.poses))
+    assert not np.array_equal(tr.poses, tr.tracked)   # the window moved some of them
     previous = 1
     for step in steps:
         assert previous <= step.settled <= step.frame + 1 and sorted(step.refined) == list(range(previous, step.frame + 1))
@@ -416,6 +417,18 @@ def test_settled_refined_poses_never_move_and_become_track_poses(crowd, window):
         previous = step.settled
     lag = max(s.frame + 1 - s.settled for s in steps)
     assert 1 <= lag <= 30, lag
-    tracked = Odometry(CAM, key=jax.random.PRNGKey(2), policy=TrackConfig())
+    tracked = Odometry(CAM, key=jax.random.PRNGKey(2), policy=TrackConfig(poses="tracked"))
     plain = [tracked.add(f) for f in frames[:5]][1:]
     assert [s.settled for s in plain] == [2, 3, 4, 5] and all(s.refined is None for s in plain)
+    tr = tracked.result()
+    np.testing.assert_array_equal(tr.poses, tr.tracked)
+    np.testing.assert_array_equal(tr.refined, tracked.refined_poses())
+
+
+def test_the_default_poses_are_refined_and_the_papers_chaining_keeps_them_as_tracked():
+    """TrackConfig() (jaxvo.track's, Odometry's and jaxvo run's default) holds the poses refined in
+    hindsight; the chaining baselines (the paper's frame to frame, the classic keyframes) keep
+    each frame's pose as tracked, and an explicit field wins over either."""
+    assert TrackConfig().poses == "refined"
+    assert TrackConfig.frame_to_frame().poses == "tracked" and TrackConfig.keyframes().poses == "tracked"
+    assert TrackConfig.frame_to_frame(poses="refined").poses == "refined"
