@@ -469,7 +469,9 @@ def test_demo_short(tmp_path):
     assert "classic" in r.stdout and "ransac" in r.stdout and "mask prec" in r.stdout
     d = json.loads((out / "results.json").read_text())
     m = d["methods"]
-    assert m["ransac"]["rpe_1f"]["trans_m"]["rmse"] < m["classic"]["rpe_1f"]["trans_m"]["rmse"], m
+    # the trajectory's error: over these first 12 frames each frame becomes a keyframe and sits at
+    # its refined anchor, so the per-frame RPE carries the window's corrections; the ATE does not
+    assert m["ransac"]["ate"]["trans_m"]["rmse"] < m["classic"]["ate"]["trans_m"]["rmse"], m
 
 
 def test_keyframe_options(tmp_path, synth_seq):
