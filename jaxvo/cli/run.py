@@ -308,7 +308,8 @@ def _print_run_summary(run):
                              f"{r.rot_drift.rmse:.3f} deg/{u} ({r.n} pairs)")
         a = errs.ate
         if a is not None:
-            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), scale {fmt(a.scale, 3)}")
+            scale = fmt(a.scale, 3) if np.isfinite(a.scale) else "- (the ground truth does not move)"
+            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), scale {scale}")
     click.echo("\n".join(lines))
 
 

@@ -212,7 +212,8 @@ class ATEResult:
     ``est_stamps`` (N,) its timestamps. ``scale``: the scale s of the least-squares similarity
     alignment of the same positions (gt ~ s R est + t, Umeyama; reported, not applied): 1 for a
     metric trajectory; an RGB-D trajectory whose depth reads a factor k too far comes out about
-    k times too long (s about 1 / k).
+    k times too long (s about 1 / k); NaN where the ground truth's positions spread less than
+    ``SCALE_MIN_SPREAD`` (a camera that stays put has no length to scale).
     """
     stats: Stats
     errors: np.ndarray
@@ -260,6 +261,12 @@ def align_umeyama(src, dst, with_scale: bool = False):
     return R, t, s
 
 
+#: The RMS distance (m) of the associated ground-truth positions from their mean under which
+#: :class:`ATEResult`'s similarity scale is undefined (NaN): with the camera in one place, the
+#: fitted scale is the ratio of two noise levels, not a length.
+SCALE_MIN_SPREAD = 1e-3
+
+
 def ate(gt_stamps, gt_poses, est_stamps, est_poses, max_dt: float = 0.02) -> ATEResult:
     """Absolute trajectory error (TUM evaluate_ate.py): associate by timestamp (one-to-one,
     within ``max_dt`` s), align estimate positions to ground truth with the least-squares
@@ -274,7 +281,9 @@ def ate(gt_stamps, gt_poses, est_stamps, est_poses, max_dt: float = 0.02) -> ATE
         raise ValueError(f"ate: only {ie.size} estimate frame(s) have ground truth within {max_dt} s "
                          f"(estimate {es[0]:.3f} .. {es[-1]:.3f}, ground truth {gs[0]:.3f} .. {gs[-1]:.3f})")
     R, t, _ = align_umeyama(eP[ie, :3, 3], gP[ig, :3, 3])
-    scale = align_umeyama(eP[ie, :3, 3], gP[ig, :3, 3], with_scale=True)[2]
+    g = gP[ig, :3, 3]
+    spread = float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, 1))))
+    scale = align_umeyama(eP[ie, :3, 3], g, with_scale=True)[2] if spread >= SCALE_MIN_SPREAD else float("nan")
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = R, t
     aligned = A @ eP

@@ -121,6 +121,21 @@ def test_ate_scale_of_a_trajectory_too_long_by_a_factor():
     assert r.stats.rmse > 1e-3 and json.loads(json.dumps(r.to_dict()))["scale"] == pytest.approx(1 / 1.05)
 
 
+def test_ate_scale_is_undefined_where_the_ground_truth_stays_put():
+    """A camera that turns in place (ground-truth positions within 0.1 mm): the similarity scale
+    would be the ratio of two noise levels, so it is NaN (None in JSON); a camera that moves
+    2 mm RMS gets its scale."""
+    rng = np.random.default_rng(2)
+    Gt = np.stack([G.exp(np.r_[rng.normal(size=3) * 0.1, rng.normal(size=3) * 1e-4]) for _ in range(30)])
+    Est = Gt.copy()
+    Est[:, :3, 3] += rng.normal(size=(30, 3)) * 1e-3
+    r = ate(np.arange(30.0), Gt, np.arange(30.0), Est)
+    assert np.isnan(r.scale) and json.loads(json.dumps(r.to_dict()))["scale"] is None
+    Gt[:, :3, 3] = rng.normal(size=(30, 3)) * 2e-3 / np.sqrt(3)
+    Est[:, :3, 3] = 1.1 * Gt[:, :3, 3]
+    assert ate(np.arange(30.0), Gt, np.arange(30.0), Est).scale == pytest.approx(1 / 1.1, rel=1e-9)
+
+
 def test_ate_known_value():
     # gt on a straight line; estimate offset by +-1 cm perpendicular in the pattern
     # + - - + (zero mean, uncorrelated with position along the line): the best alignment is
