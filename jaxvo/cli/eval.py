@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import click
 
-from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE
+from jaxvo.cli.options import CONVENTIONS, FORCE, POSITIVE, scale_text
 from jaxvo.cli.process import handle_errors
 from jaxvo.data.outputs import check_output, write_text, writing
 from jaxvo.data import DatasetError
@@ -86,8 +85,7 @@ def eval_cmd(groundtruth, est, delta, delta_unit, max_dt, json_file, plot_file, 
         nd = 3 if "deg" in name else 4
         lines.append(f"{name:<20}{fmt(s.rmse, nd):>10}{fmt(s.mean, nd):>10}{fmt(s.median, nd):>10}"
                      f"{fmt(s.max, nd):>10}{s.n:>7}")
-    lines.append(f"scale {fmt(a.scale, 4)} (similarity alignment; 1 for a metric trajectory)" if math.isfinite(a.scale)
-                 else "scale - (the ground truth does not move: no length to scale)")
+    lines.append(scale_text(a.scale, 4, " (similarity alignment; 1 for a metric trajectory)"))
     if m is not None:
         lines += ["", f"outlier mask vs true moving pixels ({res.mask_frames} frames): precision "
                       f"{fmt(m.precision, 3)}, recall {fmt(m.recall, 3)}, IoU {fmt(m.iou_outlier, 3)}"]

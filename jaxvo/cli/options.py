@@ -4,12 +4,13 @@ the device line and progress callbacks."""
 from __future__ import annotations
 
 import functools
+import math
 from pathlib import Path
 
 import click
 
 from jaxvo.camera import PRESETS
-from jaxvo.pipelines.demo import parse_size
+from jaxvo.pipelines.demo import fmt, parse_size
 from jaxvo.runtime import cache, notes
 
 __all__ = ["CONVENTIONS", "SEED", "POSITIVE", "FORCE", "compilation_cache", "compile_note", "device", "size_option",
@@ -154,3 +155,12 @@ def progress_cb(pbar):
             pbar.refresh()
         pbar.update(done - pbar.n)
     return cb
+
+
+def scale_text(scale: float, digits: int, note: str = "") -> str:
+    """``"scale X"`` for the summaries of ``run`` and ``eval``: the similarity alignment's scale
+    with ``digits`` decimals and ``note`` after it, or ``"scale -"`` with the reason where it is not
+    finite (a ground truth that does not move has no length to scale)."""
+    if math.isfinite(scale):
+        return f"scale {fmt(scale, digits)}{note}"
+    return "scale - (the ground truth does not move: no length to scale)"

@@ -9,7 +9,7 @@ import numpy as np
 
 from jaxvo.camera import DEPTH_CORRECTIONS, LENSES, PRESETS
 from jaxvo.cli.options import (CONVENTIONS, DEPTH_SCALE_HELP, FORCE, POSITIVE, SEED, compilation_cache, compile_note,
-                               depth_scale_option, device, lens_option)
+                               depth_scale_option, device, lens_option, scale_text)
 from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
@@ -308,8 +308,7 @@ def _print_run_summary(run):
                              f"{r.rot_drift.rmse:.3f} deg/{u} ({r.n} pairs)")
         a = errs.ate
         if a is not None:
-            scale = fmt(a.scale, 3) if np.isfinite(a.scale) else "- (the ground truth does not move)"
-            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), scale {scale}")
+            lines.append(f"ATE           rmse {a.rmse:.4f} m ({a.stats.n} frames), {scale_text(a.scale, 3)}")
     click.echo("\n".join(lines))
 
 

@@ -407,7 +407,7 @@ def test_cli_refined_poses_are_the_librarys(tmp_path, synth_seq):
     r = _invoke(["run", synth_seq, "--max-frames", 40, "--seed", 1, "--out", traj, "--no-progress"])
     assert r.exit_code == 0, r.output
     # seq1's camera stays put: no similarity scale to report (it would be a ratio of noise levels)
-    assert re.search(r"^ATE +rmse [0-9.]+ m \(40 frames\), scale - \(the ground truth does not move\)$", r.stdout, re.M)
+    assert re.search(r"^ATE +rmse [0-9.]+ m \(40 frames\), scale - \(the ground truth does not move: no length to scale\)$", r.stdout, re.M)
     ev = _invoke(["eval", synth_seq, traj])
     assert ev.exit_code == 0 and "scale - (the ground truth does not move: no length to scale)" in ev.stdout, ev.output
     seq = TumSequence(synth_seq, camera=DEFAULT.at_level(2), max_frames=40)
