@@ -256,7 +256,10 @@ def validate_frame(frame: Frame, camera, what: str = "frame") -> None:
 def _check_images(f, what: str) -> None:
     check_frame(f, what)
     i, d = f.intensity, f.depth
-    if getattr(i, "ndim", None) != 2 or getattr(d, "ndim", None) != 2:
+    if not (hasattr(i, "ndim") and hasattr(d, "ndim")):
+        raise ValueError(f"{what}: intensity and depth must be arrays (NumPy or JAX; see jaxvo.make_frame), got "
+                         f"{type(i).__name__} and {type(d).__name__}")
+    if i.ndim != 2 or d.ndim != 2:
         raise ValueError(f"{what}: intensity and depth must be 2-D (H, W), got shapes "
                          f"{getattr(i, 'shape', None)} and {getattr(d, 'shape', None)}")
     if tuple(i.shape) != tuple(d.shape):

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = [
-    "consecutive_motions",
+    "checked_transform", "consecutive_motions",
     "skew", "vee", "hat", "exp", "log", "exp_so3", "log_so3",
     "compose", "inverse", "matrix_from_quat", "quat_from_matrix",
     "transform_from_quat_trans", "quat_trans_from_transform",
@@ -210,6 +210,31 @@ def inverse(T_a_b):
     t = -(Rt @ T[..., :3, 3:4])
     top = xp.concatenate([Rt, t], -1)
     return xp.concatenate([top, T[..., 3:4, :]], -2)
+
+
+#: how far a rigid transform's rotation block may be from orthonormal (largest entry of R^T R - I):
+#: float32 rotations and long float64 chains are within 1e-6; a scaled or sheared matrix is not
+RIGID_TOLERANCE = 1e-3
+
+
+def checked_transform(T, what: str = "transform", rigid: bool = True) -> np.ndarray:
+    """``T`` as a (4, 4) float64 NumPy array, or ValueError naming ``what`` and the problem: not
+    4x4, NaN or inf, and (``rigid``) not a rigid transform: rotation block orthonormal within
+    :data:`RIGID_TOLERANCE` with determinant +1 (no reflection), last row (0, 0, 0, 1). For the
+    poses and initial guesses users pass in (host values; a JAX array is read back first)."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"{what} must be a 4x4 matrix, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise ValueError(f"{what} contains NaN or inf")
+    if rigid:
+        R = T[:3, :3]
+        off = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        if off > RIGID_TOLERANCE or np.linalg.det(R) <= 0 or np.any(T[3] != (0.0, 0.0, 0.0, 1.0)):
+            raise ValueError(f"{what} must be a rigid transform (rotation block orthonormal with determinant +1, "
+                             f"last row 0 0 0 1), got rotation block with max |R^T R - I| = {off:.3g}, "
+                             f"det {np.linalg.det(R):.3g}, last row {T[3].tolist()}")
+    return T
 
 
 def consecutive_motions(T_world_cam) -> np.ndarray:

@@ -354,3 +354,27 @@ def test_consecutive_motions_are_each_pairs_T_cur_ref():
     assert rel.shape == (4, 4, 4) and rel.dtype == np.float64
     np.testing.assert_allclose(rel, [np.linalg.inv(P[i + 1]) @ P[i] for i in range(4)], atol=1e-12)
     assert G.consecutive_motions(P[:1]).shape == (0, 4, 4)
+
+
+def test_checked_transform_takes_rigid_transforms_and_names_what_is_wrong():
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        T = np.asarray(G.exp(rng.normal(size=6)))
+        np.testing.assert_array_equal(G.checked_transform(T.astype(np.float32), "T"), T.astype(np.float32))
+    # a float32 rotation chained a thousand times stays within the tolerance
+    R = np.asarray(G.exp(np.array([0.01, 0.02, 0.03, 0, 0, 0])), np.float32)
+    C = np.eye(4, dtype=np.float32)
+    for _ in range(1000):
+        C = C @ R
+    G.checked_transform(C, "chain")
+    bad = {"shape": np.eye(3), "NaN or inf": np.full((4, 4), np.inf)}
+    for words, T in bad.items():
+        with pytest.raises(ValueError, match=f"T_x .*{'4x4' if words == 'shape' else words}"):
+            G.checked_transform(T, "T_x")
+    sheared = np.eye(4)
+    sheared[0, 1] = 0.01         # max |R^T R - I| = 0.01, over the 1e-3 allowed
+    for T in (np.diag([1.0, 1.0, 1.1, 1.0]), np.diag([-1.0, 1.0, 1.0, 1.0]), sheared,
+              np.vstack([np.eye(4)[:3], [0.0, 0.0, 0.1, 1.0]])):
+        with pytest.raises(ValueError, match="T_x must be a rigid transform"):
+            G.checked_transform(T, "T_x")
+    G.checked_transform(np.diag([1.1, 1.0, 1.0, 1.0]), "T_x", rigid=False)   # only 4x4 and finite

@@ -30,15 +30,6 @@ HELD_MARK = "# held"
 HEADER = "# timestamp tx ty tz qx qy qz qw  (T_world_cam: camera-to-world, metres, quaternion scalar-last)"
 
 
-def _as_pose(T, what="pose") -> np.ndarray:
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"{what} must be a 4x4 matrix, got shape {T.shape}")
-    if not np.all(np.isfinite(T)):
-        raise ValueError(f"{what} contains NaN or inf")
-    return T
-
-
 def chain(T_cur_ref_list: Iterable, T_world_first=None) -> np.ndarray:
     """Accumulate frame-to-frame motions into camera poses.
 
@@ -50,7 +41,7 @@ def chain(T_cur_ref_list: Iterable, T_world_first=None) -> np.ndarray:
     Returns:
       (N+1, 4, 4) float64 T_world_cam, ``out[k+1] = out[k] @ inv(T_cur_ref_list[k])``.
     """
-    T0 = np.eye(4) if T_world_first is None else _as_pose(T_world_first, "T_world_first")
+    T0 = np.eye(4) if T_world_first is None else geometry.checked_transform(T_world_first, "T_world_first")
     rel = [np.asarray(T, dtype=np.float64) for T in T_cur_ref_list]
     out = np.empty((len(rel) + 1, 4, 4))
     out[0] = T0
@@ -63,7 +54,7 @@ def chain(T_cur_ref_list: Iterable, T_world_first=None) -> np.ndarray:
 
 def format_pose_line(stamp: float, T_world_cam) -> str:
     """One TUM line ``timestamp tx ty tz qx qy qz qw`` (timestamp to 1e-6 s, 9 digits otherwise)."""
-    T = _as_pose(T_world_cam)
+    T = geometry.checked_transform(T_world_cam, "pose")
     q, t = geometry.quat_trans_from_transform(T)
     return (f"{float(stamp):.6f} " + " ".join(f"{x:.9f}" for x in t) + " "
             + " ".join(f"{x:.9f}" for x in q))
@@ -129,7 +120,7 @@ class TrajectoryWriter:
     def __init__(self, path, start_pose=None, append: bool = False, fsync: bool = False,
                  header: str = HEADER):
         self.path = Path(path)
-        self.start_pose = np.eye(4) if start_pose is None else _as_pose(start_pose, "start_pose")
+        self.start_pose = np.eye(4) if start_pose is None else geometry.checked_transform(start_pose, "start_pose")
         self.append = append
         self.fsync = fsync
         self.header = header
@@ -183,7 +174,7 @@ class TrajectoryWriter:
         """Write one absolute pose (4x4 T_world_cam) at ``stamp`` seconds; returns it. ``held``: the
         pose is a guess (its estimate failed and the previous pose was kept): a comment line
         ``# held <stamp>`` before it says so (:func:`read_held`), which TUM readers skip."""
-        T = _as_pose(T_world_cam, "T_world_cam")
+        T = geometry.checked_transform(T_world_cam, "T_world_cam")
         line = format_pose_line(stamp, T)
         if held:
             self._write_line(f"{HELD_MARK} {line.split()[0]}")
@@ -203,5 +194,5 @@ class TrajectoryWriter:
         not written: call :meth:`write_first` for the first frame's line).
         """
         ref = self.start_pose if self.last_pose is None else self.last_pose
-        T = _as_pose(T_cur_ref, "T_cur_ref")
+        T = geometry.checked_transform(T_cur_ref, "T_cur_ref")
         return self.write(stamp, ref @ geometry.inverse(T))

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config
 from jaxvo.estimator.pyramid import num_levels_for
@@ -101,9 +102,12 @@ def estimate_args(ref: Frame, cur: Frame, camera: Camera, config: Optional[Confi
     if (w >> (L - 1)) < 8 or (h >> (L - 1)) < 8:
         raise ValueError(f"{L} pyramid levels are too many for {w}x{h} images")
     key = checked_key(key)
-    T0 = _IDENTITY if init is None else as_float32(init)
-    if T0.shape != (4, 4):
-        raise ValueError(f"init must be a 4x4 transform, got shape {T0.shape}")
+    if init is None:
+        T0 = _IDENTITY
+    else:
+        if not isinstance(init, jax.core.Tracer):   # a traced guess (inside a caller's jit) has no values yet
+            geometry.checked_transform(init, "init (the initial T_cur_ref)")
+        T0 = as_float32(init)
     return EstimateArgs(as_float32(ref.intensity), as_float32(ref.depth), as_float32(cur.intensity),
                         as_float32(cur.depth), camera, config, key, T0, _reference_weights(ref, weights))
 
@@ -122,6 +126,22 @@ def as_float32(x):
     return np.asarray(x, np.float32)
 
 
+def _check_weight_values(wt: np.ndarray) -> None:
+    """ValueError unless every weight lies in [0, 1] (NaN fails both bounds). Host weights only: a
+    device array (the tracking's static weights, in [0, 1] by construction) is not read back, as
+    that would wait for it at every estimate."""
+    ok = (wt >= 0.0) & (wt <= 1.0)
+    if not np.all(ok):
+        bad = wt[~ok]
+        nan = np.isnan(bad)
+        values = bad[~nan]
+        found = (["NaN"] if nan.any() else []) + \
+            ([f"values from {float(values.min()):g} to {float(values.max()):g}"] if values.size else [])
+        hint = " (a 0-255 mask? divide it by 255)" if values.size and values.max() > 1.0 else ""
+        raise ValueError(f"weights must lie in [0, 1] (trust per reference pixel; 0 = ignore), got "
+                         f"{' and '.join(found)}{hint}")
+
+
 def _reference_weights(ref: Frame, weights=None):
     """(H, W) float32 trust of the reference pixels: ``weights`` (default 1) times ``ref.mask``."""
     h, w = ref.intensity.shape
@@ -134,6 +154,8 @@ def _reference_weights(ref: Frame, weights=None):
         wt = as_float32(weights)
     if wt.shape != (h, w):
         raise ValueError(f"weights must have the images' shape {(h, w)}, got {wt.shape}")
+    if weights is not None and not isinstance(wt, jax.Array):
+        _check_weight_values(wt)
     if getattr(ref, "mask", None) is not None:
         m = ref.mask if isinstance(ref.mask, jax.Array) else np.asarray(ref.mask)
         if m.shape != (h, w):

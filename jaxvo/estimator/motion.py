@@ -133,18 +133,20 @@ def estimate_motion(ref: Union[Frame, PreparedFrame], cur: Union[Frame, Prepared
         published algorithm).
       key: ``jax.random`` key (used by "ransac"); default ``jax.random.key(0)``. The
         same key gives a bitwise identical result.
-      init: optional (4, 4) initial guess of T_cur_ref (default identity).
+      init: optional (4, 4) rigid initial guess of T_cur_ref (default identity).
       weights: optional (H, W) trust in each *reference* pixel as static scene, in [0, 1]
         (e.g. a static-probability prior; 0 = ignore). It multiplies ``ref.mask`` (a
         user mask: True = the pixel may be used, as OpenCV's ``OdometryFrame`` mask).
         RANSAC samples only pixels of weight >= 0.5, scoring and refinement weigh by it.
+        NumPy weights are checked; a JAX array is taken as it is (reading it back would wait for it).
 
     Returns:
       :class:`MotionEstimate` whose ``T_cur_ref`` maps reference-camera points into the current camera.
 
     Raises:
       ValueError: mismatched sizes, wrong dtypes or shapes, intrinsics that do not match the
-        images, no valid depth, or an invalid config.
+        images, no valid depth, an invalid config, an ``init`` that is not a finite rigid
+        transform, or weights outside [0, 1] (NaN included).
     """
     frames = [x.frame if isinstance(x, PreparedFrame) else x for x in (ref, cur)]
     args = estimate_args(frames[0], frames[1], camera, config, key, init, weights)   # every check

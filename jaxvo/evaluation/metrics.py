@@ -74,6 +74,8 @@ def _check_traj(stamps, poses, what):
         raise ValueError(f"{what}: need (N,) stamps and (N, 4, 4) poses, got {s.shape} and {P.shape}")
     if not np.all(np.isfinite(P)):
         raise ValueError(f"{what}: poses contain NaN or inf")
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"{what}: stamps contain NaN or inf")
     order = np.argsort(s, kind="stable")
     return s[order], P[order]
 

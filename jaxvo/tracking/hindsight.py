@@ -127,17 +127,33 @@ def sequence_masks(frame_at: Callable[[int], object], poses, camera: Camera, con
       guessed pose sees the static scene change (docs/decisions/hindsight-masks.md).
     config: its ``thresh_lum``, ``thresh_depth`` and ``max_depth`` (default ``Config()``).
     mask: (H, W) bool, True on the frame's moving pixels (see the module docstring).
+    A list of frames may stand for ``frame_at`` (its items are read by index). The arguments are
+    checked when this is called (ValueError naming the problem), not at the first mask.
     """
+    if not callable(frame_at):
+        if not hasattr(frame_at, "__getitem__"):
+            raise ValueError(f"frame_at must be a function i -> Frame (e.g. TumSequence.frame) or a list of "
+                             f"frames, got {type(frame_at).__name__}")
+        frame_at = frame_at.__getitem__
     config = Config() if config is None else config
     poses = np.asarray(poses, np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise ValueError(f"poses must be (N, 4, 4) T_world_cam matrices, got shape {poses.shape}")
-    n = poses.shape[0]
-    has_pose = np.isfinite(poses).all(axis=(1, 2))
     offsets = sorted({int(o) for o in offsets if int(o) != 0})
     if not offsets:
         raise ValueError("offsets must hold at least one nonzero frame offset")
-    todo = [i for i in (range(n) if frames is None else frames) if has_pose[i]]
+    n = poses.shape[0]
+    frames = range(n) if frames is None else list(frames)
+    if any(not 0 <= i < n for i in frames):
+        raise ValueError(f"frames must be indices of the {n} poses, got {[i for i in frames if not 0 <= i < n][:5]}")
+    return _sequence_masks(frame_at, poses, camera, config, params, offsets, frames)
+
+
+def _sequence_masks(frame_at, poses, camera: Camera, config: Config, params: HindsightParams, offsets, frames):
+    """:func:`sequence_masks`' generator, on its checked arguments."""
+    n = poses.shape[0]
+    has_pose = np.isfinite(poses).all(axis=(1, 2))
+    todo = [i for i in frames if has_pose[i]]
     reach = max(abs(o) for o in offsets)
     window = {}   # frame index -> (Level, depth); the frames within ``reach`` of the one decided
     for i in todo:

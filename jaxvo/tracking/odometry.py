@@ -246,7 +246,7 @@ class Odometry:
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self.static_map = StaticMap(camera, self.config.max_depth, self.params) if self.policy.segment \
             else NoStaticMap()
-        self._first = np.eye(4) if T_world_first is None else np.asarray(T_world_first, np.float64)
+        self._first = np.eye(4) if T_world_first is None else geometry.checked_transform(T_world_first, "T_world_first")
         self.poses: list = []
         self.valid: list = []          # per frame >= 1: its estimate succeeded
         self.inlier_ratio: list = []
@@ -857,7 +857,8 @@ def track(frames: Iterable[Frame], camera: Camera, config: Optional[Config] = No
     ``T_world_cur = T_world_ref @ inv(T_cur_ref)``.
     ``callback(step)`` is called with a :class:`TrackStep` after each frame j >= 1 (e.g. to
     write the trajectory as it grows). ``segment_params``: the segmentation's numbers
-    (default :class:`jaxvo.tracking.segmentation.SegmentParams`).
+    (default :class:`jaxvo.tracking.segmentation.SegmentParams`). ``T_world_first``: the first
+    frame's (4, 4) rigid T_world_cam (default identity; ValueError if it is not one).
     """
     odo = Odometry(camera, config, key, policy, T_world_first, segment_params)
     n = 0

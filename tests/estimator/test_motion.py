@@ -304,6 +304,35 @@ def test_bad_input_raises_clear_value_error(make, match):
         estimate_motion(ref, cur, cam, cfg)
 
 
+def _turn(deg=10.0):
+    """A rigid T_cur_ref: a turn about y and a step along x."""
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, 0, s, 0.05], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(init=np.eye(3)), r"init \(the initial T_cur_ref\) must be a 4x4 matrix"),
+    (dict(init=np.full((4, 4), np.nan)), "init .* contains NaN or inf"),
+    (dict(init=np.diag([2.0, 2.0, 2.0, 1.0])), "init .* must be a rigid transform"),            # scaled
+    (dict(init=np.diag([1.0, 1.0, -1.0, 1.0])), "init .* must be a rigid transform"),           # a reflection
+    (dict(init=np.vstack([_turn()[:3], [0, 0, 1, 1]])), "init .* must be a rigid transform"),   # last row
+    (dict(weights=np.where(np.eye(480, 640) > 0, np.nan, 1.0)), r"weights must lie in \[0, 1\].* got NaN$"),
+    (dict(weights=np.full((480, 640), 255.0)), "got values from 255 to 255 .*divide it by 255"),
+    (dict(weights=np.full((480, 640), -0.5)), "got values from -0.5 to -0.5$"),
+])
+def test_a_bad_guess_or_bad_weights_raise_clear_value_error(kwargs, match):
+    """What the estimate would otherwise take silently (a NaN pose out, a scaled pose refined as
+    if rigid, weights whose sums make no sense) is refused before anything runs."""
+    with pytest.raises(ValueError, match=match):
+        estimate_motion(_frame(), _frame(), CAM, Config(), **kwargs)
+
+
+def test_frames_of_lists_name_what_they_must_be():
+    f = _frame(8, 8)
+    with pytest.raises(ValueError, match="intensity and depth must be arrays .*got list and list"):
+        estimate_motion(_frame(), Frame(f.intensity.tolist(), f.depth.tolist()), CAM, Config())
+
+
 def test_public_api_exports():
     for name in ("estimate_motion", "track", "Config", "MotionEstimate", "Camera", "Frame", "make_frame",
                  "TrackConfig", "TrackStep", "Track", "Odometry"):

@@ -87,6 +87,12 @@ def test_rpe_errors():
         rpe(t, P, t, P, delta_unit="m")
     with pytest.raises(ValueError, match="no pair"):
         rpe(t, P, t, P, delta=10.0)  # sequence shorter than the delta
+    bad = t.copy()
+    bad[2] = np.nan                  # not matched to nothing in silence
+    with pytest.raises(ValueError, match="estimate: stamps contain NaN or inf"):
+        ate(t, P, bad, P)
+    with pytest.raises(ValueError, match="ground truth: stamps contain NaN or inf"):
+        rpe(bad, P, t, P, delta=1, delta_unit="f")
 
 
 def test_ate_zero_for_rigidly_moved_copy():

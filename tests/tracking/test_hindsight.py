@@ -150,10 +150,24 @@ def test_sequence_masks_find_the_person(seq1):
 
 
 def test_sequence_masks_bad_arguments():
+    """Refused when called, before any mask is asked for (nothing to iterate)."""
     with pytest.raises(ValueError, match="poses must be"):
-        next(hindsight.sequence_masks(lambda i: None, np.eye(4), CAM))
+        hindsight.sequence_masks(lambda i: None, np.eye(4), CAM)
     with pytest.raises(ValueError, match="offsets"):
-        next(hindsight.sequence_masks(lambda i: None, np.eye(4)[None], CAM, offsets=(0,)))
+        hindsight.sequence_masks(lambda i: None, np.eye(4)[None], CAM, offsets=(0,))
+    with pytest.raises(ValueError, match="frame_at must be a function i -> Frame .* got int"):
+        hindsight.sequence_masks(3, np.eye(4)[None], CAM)
+    with pytest.raises(ValueError, match=r"frames must be indices of the 2 poses, got \[-1, 2\]"):
+        hindsight.sequence_masks(lambda i: None, np.eye(4)[None].repeat(2, 0), CAM, frames=[0, -1, 2])
+
+
+def test_sequence_masks_of_a_list_of_frames_are_those_of_frame_at(seq1):
+    seq = TumSequence(seq1)
+    poses = seq.groundtruth_at_frames()[1][:8]
+    frames = [seq.frame(i) for i in range(8)]
+    by_list = dict(hindsight.sequence_masks(frames, poses, seq.camera, offsets=(-2, 2)))
+    by_call = dict(hindsight.sequence_masks(seq.frame, poses, seq.camera, offsets=(-2, 2)))
+    assert sorted(by_list) == list(range(8)) and all(np.array_equal(by_list[i], by_call[i]) for i in by_call)
 
 
 def test_masks_command_writes_what_eval_scores(seq1, tmp_path):

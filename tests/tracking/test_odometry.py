@@ -121,3 +121,16 @@ def test_timings_profile_the_estimates_without_changing_poses(static_pair):
     assert len(estimates["estimate: track"]) == len(frames) - 1
     assert set(estimates) <= {f"estimate: {p}" for p in ("track", "retry", "recover", "window", "fuse")}
     assert all(t > 0 for ts in timed.timings.values() for t in ts)
+
+
+@pytest.mark.parametrize("T, match", [
+    (np.eye(3), "T_world_first must be a 4x4 matrix"),
+    (np.full((4, 4), np.nan), "T_world_first contains NaN or inf"),
+    (np.diag([2.0, 2.0, 2.0, 1.0]), "T_world_first must be a rigid transform"),
+])
+def test_a_first_pose_that_is_not_rigid_is_refused_by_name(T, match):
+    """Not taken silently (a NaN or scaled first pose would put every pose of the run off)."""
+    with pytest.raises(ValueError, match=match):
+        Odometry(CAM, T_world_first=T)
+    with pytest.raises(ValueError, match=match):
+        track(iter(()), CAM, T_world_first=T)
