@@ -51,7 +51,9 @@ from jaxvo.data.trajectory import TrajectoryWriter, read_tum_trajectory, write_t
 from jaxvo.evaluation.metrics import ate, mask_scores, rpe
 from jaxvo.evaluation.scoring import evaluate, trajectory_errors
 # pipelines: what the commands do
-from jaxvo.pipelines.run import RunResult, load_config, load_sequence, run_sequence
+from jaxvo.pipelines.run import RunResult, run_sequence
+from jaxvo.pipelines.sequences import load_sequence
+from jaxvo.pipelines.settings import load_config
 
 __all__ = [
     "cache", "geometry", "Camera", "camera_for_sequence", "PRESETS", "TUM_FR1", "TUM_FR2", "TUM_FR3", "BONN",

@@ -14,7 +14,8 @@ from jaxvo.cli.process import CtrlC, exit_now, handle_errors
 from jaxvo.data.outputs import partial_path
 from jaxvo.data import DatasetError
 from jaxvo.pipelines.demo import fmt, progress_bar
-from jaxvo.pipelines.run import count_poses, execute_run, expand_sequences, plan_run, setup_run
+from jaxvo.pipelines.run import count_poses, execute_run, expand_sequences, plan_run
+from jaxvo.pipelines.settings import setup_run
 
 __all__ = ["run_cmd"]
 

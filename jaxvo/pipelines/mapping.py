@@ -466,7 +466,7 @@ def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 
     The trajectory's held poses are left out (:func:`read_kept_poses`); the rest go to
     :func:`build_map` (``labels``, ``every``, ``voxel`` metres, ``max_depth`` metres, estimator
     ``method``, ``seed``, ``max_dt`` s) with the sequence opened as ``jaxvo run`` would
-    (:func:`jaxvo.pipelines.run.load_sequence`). ``out_ply`` gets the cloud in its display
+    (:func:`jaxvo.pipelines.sequences.load_sequence`). ``out_ply`` gets the cloud in its display
     colours and each point's label as the vertex property ``moving`` (with ``labels``; the default,
     "hindsight", marks what moves, people included, with :func:`jaxvo.tracking.hindsight.sequence_masks`),
     ``preview`` a PNG rendering (:func:`render_preview`); both are written under
@@ -478,7 +478,7 @@ def map_sequence(sequence_dir, traj, out_ply, *, every: int = 5, voxel: float = 
     from jaxvo.data.outputs import check_output, writing
     from jaxvo.data.ply import write_ply
     from jaxvo.data import DatasetError
-    from jaxvo.pipelines.run import check_camera_size, load_sequence
+    from jaxvo.pipelines.sequences import check_camera_size, load_sequence
 
     kept = read_kept_poses(traj)
     check_output(out_ply, [sequence_dir, traj], force)

@@ -18,7 +18,8 @@ from jaxvo.data.outputs import check_output_folder, finish, partial_path
 from jaxvo.data import DatasetError
 from jaxvo.pipelines.mapping import match_trajectory, read_kept_poses
 from jaxvo.pipelines.messages import one_line
-from jaxvo.pipelines.run import check_camera_size, load_sequence, stamp_name
+from jaxvo.pipelines.run import stamp_name
+from jaxvo.pipelines.sequences import check_camera_size, load_sequence
 
 __all__ = ["MasksRun", "write_hindsight_masks"]
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 import jaxvo
 from jaxvo.cli.main import main
 from jaxvo.config import Config, TrackConfig
-from jaxvo.pipelines.run import read_run_settings
+from jaxvo.pipelines.settings import read_run_settings
 
 
 def test_config_json_round_trip_is_exact_and_generic_over_fields():

@@ -12,8 +12,8 @@ from jaxvo.data import DatasetError, TumSequence
 from jaxvo.data.trajectory import write_tum_trajectory
 from jaxvo.pipelines.mapping import KeptPoses, MapRun, map_sequence, read_kept_poses
 from jaxvo.pipelines.masks import MasksRun, write_hindsight_masks
-from jaxvo.pipelines.run import (ReaderOptions, RunPlan, RunReport, RunSettings, RunSetup, SequenceRun,
-                                 execute_run, expand_sequences, plan_run, read_run_settings, run_header, setup_run)
+from jaxvo.pipelines.run import RunPlan, RunReport, SequenceRun, execute_run, expand_sequences, plan_run
+from jaxvo.pipelines.settings import ReaderOptions, RunSettings, RunSetup, read_run_settings, run_header, setup_run
 
 CAM = DEFAULT.at_level(2)   # 160x120: fast to render and to track
 
