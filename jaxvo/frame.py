@@ -17,7 +17,7 @@ sequence readers' check of a recording's first frame).
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Tuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 

@@ -14,7 +14,7 @@ the reference (ground-truth) trajectory extends most, unless ``axes`` is given
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, Mapping, Optional, Sequence, Tuple
+from typing import Mapping, Optional, Tuple
 
 import matplotlib
 

@@ -23,7 +23,7 @@ from typing import Iterator, Optional, Tuple, Union
 
 import numpy as np
 
-from jaxvo.camera import DEPTH_CORRECTIONS, LENSES, NO_LENS, Camera, Lens
+from jaxvo.camera import DEPTH_CORRECTIONS, LENSES, Camera, Lens
 from jaxvo.data.calibration import check_depth_scale, published_sensor, resolve_depth_scale, sequence_camera
 from jaxvo.data.errors import DatasetError
 from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple, Optional, Sequence, Tuple
 
-import jax
 import jax.numpy as jnp
 
 __all__ = ["Level", "level_size", "flat_offset", "level_slice", "stack_padded", "sanitize_depth", "downsample", "gradients", "depth_gradients", "build_pyramid", "weight_pyramid",
