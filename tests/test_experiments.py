@@ -398,6 +398,28 @@ def test_error_stretches_finds_the_stretch_that_holds_a_jump():
     assert abs(rows[1]["gt_mm"] - 1000 * np.linalg.norm((geometry.inverse(G[10]) @ G[20])[:3, 3])) < 1e-9
 
 
+def test_error_stretches_costs_put_a_jump_where_it_is(tmp_path):
+    """stretch_costs: a trajectory that is the ground truth but for a 5 cm jump between frames 12 and
+    13 scores ATE and RPE 1 s 0 once the stretch holding the jump is replaced by the ground truth,
+    and keeps its error where any other stretch is."""
+    from jaxvo import geometry
+
+    es = _script("error_stretches")
+    seq = es.common.open_sequence(es.common.synthetic_sequence(tmp_path / "seq", 40))
+    ok, G = seq.groundtruth_at_frames()
+    assert ok.all()
+    jump = np.eye(4)
+    jump[:3, 3] = [0.05, 0.0, 0.0]
+    P = np.stack([G[k] if k <= 12 else jump @ G[k] for k in range(len(G))])
+    stretches = es.stretch_errors(P, G, 10)
+    costs = es.stretch_costs(seq, P, G, stretches)
+    assert [c["first"] for c in costs] == [None, 0, 10, 20, 30]
+    assert costs[0]["ate"] > 0.01 and costs[0]["rpe1s"] > 0.01          # the jump, as estimated
+    assert costs[2]["ate"] < 1e-6 and costs[2]["rpe1s"] < 1e-6          # frames 10-20 exact: no error left
+    for c in (costs[1], costs[3], costs[4]):
+        assert abs(c["ate"] - costs[0]["ate"]) < 1e-9 and abs(c["rpe1s"] - costs[0]["rpe1s"]) < 1e-9
+
+
 def test_error_stretches_quick(tmp_path):
     """error_stretches.py on the first Bonn frames: a row per stretch with the static share and
     inlier ratio of its frames, the worst frames, and a bad option stops with its name."""
@@ -409,6 +431,8 @@ def test_error_stretches_quick(tmp_path):
                for r in data["stretches"])
     assert len(data["worst"]) == 6 and {w["seed"] for w in data["worst"]} == {0, 1}
     assert "## Stretches of 4 frames" in out.read_text() and out.with_suffix(".json").is_file()
+    assert [c["stretch"] for c in data["costs"]] == ["none (as estimated)", "0-4", "4-8", "8-11"]
+    assert all(c["ate"] is not None and c["rpe1s"] is None for c in data["costs"])   # 12 frames: under 1 s
     with pytest.raises(SystemExit):
         _script("error_stretches").main(["--policy", '{"windw": 2}'])
 

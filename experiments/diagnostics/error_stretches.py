@@ -10,7 +10,9 @@ motion over it. Per frame: the error of its own estimate (``T_cur_ref`` against 
 against the ground truth's), the share of the reference's valid-depth pixels the segmentation
 trusted as static for it (``TrackStep.static_mask``), the estimate's inlier ratio and whether the
 frame was held. Reported: each stretch (mean over the seeds) with the mean static share and inlier
-ratio of its frames and its held frames, and the frames whose own estimate erred most (each seed).
+ratio of its frames and its held frames, what each stretch's error costs the whole trajectory (its ATE
+and RPE 1 s with that stretch's relative motions replaced by the ground truth's), and the frames whose
+own estimate erred most (each seed).
 
 A stretch with a large error and a low static share is where people cover what the reference
 could have been aligned on; one with a large error and a high share points at the estimator.
@@ -84,6 +86,24 @@ def stretch_errors(poses: np.ndarray, G: np.ndarray, length: int) -> List[dict]:
     return rows
 
 
+def stretch_costs(seq, poses: np.ndarray, G: np.ndarray, stretches: List[dict]) -> List[dict]:
+    """What each stretch's error costs the whole trajectory: per stretch, the trajectory's ATE (m) and
+    RPE 1 s (m/s; None where the frames span under a second) as :func:`experiments.common.evaluate`
+    scores it, with that stretch's consecutive relative motions replaced by the ground truth's and
+    the others as estimated. The first row (``first`` None) is the trajectory as estimated.
+    poses, G: (N, 4, 4) T_world_cam of ``seq``'s frames."""
+    rel = geometry.consecutive_motions(poses)
+    exact = geometry.consecutive_motions(G)
+    rows = []
+    for row in [{"first": None, "last": None}] + stretches:
+        r = rel.copy()
+        if row["first"] is not None:
+            r[row["first"]:row["last"]] = exact[row["first"]:row["last"]]
+        m = common.evaluate(seq, r)
+        rows.append({"first": row["first"], "last": row["last"], "ate": m["ate"], "rpe1s": m["rpe1s_t"]})
+    return rows
+
+
 def frame_rows(steps, G: np.ndarray, depths) -> List[dict]:
     """Per tracked frame (``TrackStep`` of frames >= 1): its reference, the error of its own estimate
     against the ground truth's ``inv(G_frame) G_reference`` (mm, deg), the share of the reference's
@@ -113,13 +133,15 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         raise SystemExit(f"{folder}: the ground truth must cover every frame")
     frames = common.load_frames(seq)
     length = 4 if args.quick else args.stretch
-    per_seed, worst = [], []
+    per_seed, worst, costs = [], [], []
     for seed in args.seed_list:
         common.log(f"[error_stretches] {seq.name} seed {seed}")
         steps = []
         result = track(frames, seq.camera, args.config_obj, key=jax.random.key(seed), policy=args.policy_obj,
                        callback=steps.append)
-        stretches = stretch_errors(np.asarray(result.poses, np.float64), G, length)
+        poses = np.asarray(result.poses, np.float64)
+        stretches = stretch_errors(poses, G, length)
+        costs.append(stretch_costs(seq, poses, G, stretches))
         fr = frame_rows(steps, G, [f.depth for f in frames])
         for row in stretches:
             inside = [f for f in fr if row["first"] < f["frame"] <= row["last"]]
@@ -148,6 +170,19 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                                     ("GT motion [deg]", "gt_deg", ".2f"), ("static share", "static", ".2f"),
                                     ("inlier ratio", "inliers", ".2f"), ("held", "held", ".1f"),
                                     ("references", "references", ".1f")])
+    def mean(key, i):
+        values = [c[i][key] for c in costs]
+        return None if any(v is None for v in values) else float(np.mean(values))
+
+    cost_rows = [{"stretch": "none (as estimated)" if c["first"] is None else f"{c['first']}-{c['last']}",
+                  "ate": mean("ate", i), "rpe1s": mean("rpe1s", i)} for i, c in enumerate(costs[0])]
+    lines += ["", "## What each stretch costs the trajectory", "",
+              "The whole trajectory's ATE and RPE 1 s (translation) with one stretch's consecutive relative "
+              "motions replaced by the ground truth's, the rest as estimated, mean over the seeds: where the "
+              "trajectory's error would go if that stretch were tracked exactly. The first row is the "
+              "trajectory as estimated.", ""]
+    lines += common.md_table(cost_rows, [("exact stretch", "stretch", ""), ("ATE [m]", "ate", ".4f"),
+                                         ("RPE 1 s [m/s]", "rpe1s", ".4f")])
     lines += ["", f"## The {args.worst} frames per seed whose own estimate erred most", "",
               "The error of the frame's estimate against its reference (`T_cur_ref`), against the ground "
               "truth's relative pose of the two frames.", ""]
@@ -156,7 +191,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                                      ("static share", "static", ".2f"), ("inlier ratio", "inliers", ".2f"),
                                      ("held", "held", "")])
     data = {"args": {k: v for k, v in vars(args).items() if not k.endswith("_obj")}, "stretches": rows,
-            "per_seed": per_seed, "worst": worst}
+            "per_seed": per_seed, "worst": worst, "costs": cost_rows, "costs_per_seed": costs}
     out = common.write_outputs(args.out, lines, data)
     common.log(f"[error_stretches] wrote {out}")
     return data
