@@ -116,8 +116,8 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
 
     Raises:
       ValueError: wrong shapes or dtypes, mismatched sizes, an unknown color_order, integer
-        depth without depth_scale, no valid depth at all, or depth whose range says the scale
-        is wrong (e.g. millimetres passed as metres).
+        depth without depth_scale, no valid depth at all, depth whose range says the scale
+        is wrong (e.g. millimetres passed as metres), or a float image on [0, 1] (not 0-255).
     """
     where = f"{source}: " if source else ""
     check_values({"color_order": color_order}, _ORDER_RULE, f"{where}make_frame")
@@ -156,6 +156,11 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
                          f"(expected metres; pass depth_scale={s:g}, which gives {raw / s:.2f} m)")
     if not np.isfinite(inten).all():
         raise ValueError(f"{where}intensity contains NaN or inf")
+    if np.issubdtype(img.dtype, np.floating) and 0.0 < float(inten.max()) <= 1.0:
+        # the residual thresholds (Config.thresh_lum, 30) are grey levels of 0-255: a [0, 1] image
+        # would make every pixel an inlier
+        raise ValueError(f"{where}image is floating point with values in [0, 1]; jaxvo reads colour on 0-255 "
+                         f"(uint8, uint16, or float already on 0-255): pass image * 255")
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != d.shape:

@@ -113,6 +113,16 @@ def test_non_finite_intensity_raises():
     _raises(r"intensity contains NaN", img, _depth_u16(), 5000)
 
 
+def test_a_float_image_on_0_1_raises_with_the_fix():
+    """Float colour scaled to [0, 1] (skimage, OpenCV's convertTo) would put every residual under
+    the 30-grey-level threshold; a dark uint8 image and float images on 0-255 pass."""
+    rng = np.random.default_rng(0)
+    _raises(r"values in \[0, 1\].*pass image \* 255", rng.random((H, W, 3)), _depth_u16(), 5000)
+    _raises(r"values in \[0, 1\]", rng.random((H, W)).astype(np.float32), _depth_u16(), 5000)
+    make_frame((rng.random((H, W)) * 255).astype(np.float32), _depth_u16(), 5000)
+    make_frame(np.ones((H, W), np.uint8), _depth_u16(), 5000)          # integer: grey levels, however dark
+
+
 def test_luminance_weights():
     px = np.zeros((1, 4, 3), np.uint8)
     px[0, 0] = (255, 0, 0)
