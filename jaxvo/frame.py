@@ -149,7 +149,7 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
         raise ValueError(f"{where}depth is {d.dtype} (sensor units) and no depth_scale was given: pass "
                          f"depth_scale={s:g} (value / {s:g} = metres: median {med / s:.2f} m); 5000 for TUM, "
                          f"Bonn and ETH3D PNGs, 1000 for millimetres")
-    if med > 100.0:
+    if med > DEPTH_UNIT_LIMIT:
         raw = med * (1.0 if depth_scale is None else float(depth_scale))
         s = suggest_depth_scale(raw, exclude=depth_scale)
         raise ValueError(f"{where}depth looks like it has the wrong scale: median {med:.1f} m "
@@ -287,13 +287,23 @@ def _check_depth(f, what: str) -> None:
     except Exception:  # a tracer: cannot check values
         return
     if not _has_valid_depth(d):
+        beyond = d[(d > DEPTH_UNIT_LIMIT) & (d < np.inf)]
+        if beyond.size:
+            raise ValueError(f"{what}: depth has no pixel within 0-{DEPTH_UNIT_LIMIT:g} m (median "
+                             f"{float(np.median(beyond)):.4g}): a Frame's depth is metres; millimetres? "
+                             f"jaxvo.make_frame(image, depth, depth_scale=1000) converts")
         raise ValueError(f"{what}: depth has no valid pixel (all zero, negative or NaN)")
 
 
+#: metres: no RGB-D sensor reads farther, so depth beyond it everywhere is in another unit
+#: (millimetres, sensor units) and is refused rather than estimated on as "too far"
+DEPTH_UNIT_LIMIT = 100.0
+
+
 def _has_valid_depth(d: np.ndarray) -> bool:
-    """Whether (H, W) depth ``d`` has a finite positive pixel. Every 8th row first: a frame with
-    depth nearly always has one there, and the whole test costs 0.4 ms at 640x480, a per-pair
-    cost of every estimate."""
+    """Whether (H, W) depth ``d`` has a pixel in (0, :data:`DEPTH_UNIT_LIMIT`] metres. Every 8th
+    row first: a frame with depth nearly always has one there, and the whole test costs 0.4 ms
+    at 640x480, a per-pair cost of every estimate."""
     def valid(x):
-        return bool(np.any((x > 0) & (x < np.inf)))   # NaN fails both comparisons
+        return bool(np.any((x > 0) & (x <= DEPTH_UNIT_LIMIT)))   # NaN fails both comparisons
     return valid(d[::8]) or valid(d)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxvo.camera import DEFAULT
+from jaxvo.camera import DEFAULT, camera_for_size
 from jaxvo.frame import Frame, check_frame, luminance, make_frame, suggest_depth_scale, validate_pair
 
 H, W = 60, 80
@@ -266,3 +266,18 @@ def test_check_frame_names_what_was_passed(value, match):
     with pytest.raises(ValueError, match=match):
         check_frame(value)
     check_frame(Frame(np.zeros((2, 2), np.float32), np.ones((2, 2), np.float32)))   # a Frame passes
+
+
+def test_depth_in_millimetres_is_refused_by_the_estimator_with_the_fix():
+    """A Frame built directly (not by make_frame) with depth in millimetres: every pixel beyond any
+    sensor's range. Refused, naming the unit, where it would otherwise give invalid estimates in
+    silence; depth farther than Config.max_depth but in metres is not refused (a far view)."""
+    from jaxvo.frame import validate_frame
+    rng = np.random.default_rng(0)
+    img = (rng.random((H, W)) * 255).astype(np.float32)
+    cam = camera_for_size(DEFAULT, W, H)
+    with pytest.raises(ValueError, match=r"reference frame: depth has no pixel within 0-100 m \(median 1500\).*depth_scale=1000"):
+        validate_pair(Frame(img, np.full((H, W), 1500.0, np.float32)), Frame(img, np.ones((H, W), np.float32)), cam)
+    validate_frame(Frame(img, np.full((H, W), 30.0, np.float32)), cam)
+    with pytest.raises(ValueError, match="no valid pixel"):
+        validate_frame(Frame(img, np.full((H, W), -1.0, np.float32)), cam)
