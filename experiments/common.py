@@ -34,7 +34,6 @@ import jax
 
 from jaxvo import data as datasets
 from jaxvo.runtime import machine
-from jaxvo.evaluation import metrics
 from jaxvo.evaluation import peers
 from jaxvo.data import trajectory  # noqa: E402
 from jaxvo.config import METHODS, Config  # noqa: E402
@@ -527,7 +526,7 @@ def md_table(rows: Sequence[dict], columns: Sequence[tuple]) -> List[str]:
     for r in rows:
         cells = []
         for c in columns:
-            h, k = c[0], c[1]
+            k = c[1]
             spec = c[2] if len(c) > 2 else ".4f"
             v = k(r) if callable(k) else r.get(k)
             cells.append(fmt(v, spec))

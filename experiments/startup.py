@@ -245,7 +245,6 @@ def stage_rows(seq: Path, methods: List[str], pairs: int = 5, repeats: int = 5) 
     import jax
     import numpy as np
 
-    from jaxvo.config import Config
     from jaxvo.estimator import estimate_args, estimate_arrays_jit
     from jaxvo.estimator.solvers import COMPILER_OPTIONS
 

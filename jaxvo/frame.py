@@ -25,8 +25,12 @@ from jaxvo.validation import check_values, choice, number
 
 __all__ = ["Frame", "make_frame", "undistort", "undistort_images", "luminance", "validate_pair", "validate_frame", "check_frame",
            "suggest_depth_scale",
-           "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
+           "DEPTH_UNIT_LIMIT", "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
+
+#: metres: no RGB-D sensor reads farther, so depth beyond it everywhere is in another unit
+#: (millimetres, sensor units) and is refused rather than estimated on as "too far"
+DEPTH_UNIT_LIMIT = 100.0
 #: where a median valid depth (metres) is taken as plausible for an RGB-D camera
 PLAUSIBLE_DEPTH = (0.2, 10.0)
 #: depth scales of common sensors and formats (sensor value / scale = metres): millimetres
@@ -293,11 +297,6 @@ def _check_depth(f, what: str) -> None:
                              f"{float(np.median(beyond)):.4g}): a Frame's depth is metres; millimetres? "
                              f"jaxvo.make_frame(image, depth, depth_scale=1000) converts")
         raise ValueError(f"{what}: depth has no valid pixel (all zero, negative or NaN)")
-
-
-#: metres: no RGB-D sensor reads farther, so depth beyond it everywhere is in another unit
-#: (millimetres, sensor units) and is refused rather than estimated on as "too far"
-DEPTH_UNIT_LIMIT = 100.0
 
 
 def _has_valid_depth(d: np.ndarray) -> bool:

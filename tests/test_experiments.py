@@ -402,8 +402,6 @@ def test_error_stretches_costs_put_a_jump_where_it_is(tmp_path):
     """stretch_costs: a trajectory that is the ground truth but for a 5 cm jump between frames 12 and
     13 scores ATE and RPE 1 s 0 once the stretch holding the jump is replaced by the ground truth,
     and keeps its error where any other stretch is."""
-    from jaxvo import geometry
-
     es = _script("error_stretches")
     seq = es.common.open_sequence(es.common.synthetic_sequence(tmp_path / "seq", 40))
     ok, G = seq.groundtruth_at_frames()

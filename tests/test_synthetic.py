@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxvo import geometry
-from jaxvo.camera import DEFAULT, TUM_FR2
+from jaxvo.camera import DEFAULT
 from jaxvo.synthetic import (Box, FixedPose, Rect, Scene, SensorModel, augment, generate, make_object,
                              make_person, make_room, make_sequence, render)
 from jaxvo.synthetic.motions import rot_x, rot_y

@@ -11,7 +11,7 @@ import pytest
 from jaxvo import geometry as G
 from jaxvo.frame import undistort
 from jaxvo.camera import (BONN, DEFAULT, DEPTH_CORRECTIONS, LENSES, NO_LENS, PRESETS, TUM_FR2, Camera, camera_for_size,
-                          depth_correction_for_sequence, lens_for_sequence)
+                          depth_correction_for_sequence)
 from jaxvo.data import (T_M_BONN, T_ROS, DatasetError, TumSequence, associate, bonn_marker_to_camera,
                         data_root, find_sequence, find_sequences, interpolate_poses, read_file_list,
                         read_pose_file)

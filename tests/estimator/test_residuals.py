@@ -9,8 +9,7 @@ import pytest
 from jaxvo import geometry as G
 from jaxvo.camera import DEFAULT
 from jaxvo.estimator import pyramid
-from jaxvo.estimator.pyramid import Level
-from jaxvo.estimator.residuals import (RefPoints, photometric_terms, reference_points, residuals, sample_bilinear,
+from jaxvo.estimator.residuals import (photometric_terms, reference_points, residuals, sample_bilinear,
                              sample_nearest, select_points, warp, warp_jacobian)
 
 CAM = DEFAULT.at_level(2)          # 160 x 120, fx = 131.25, c = (79.5, 59.5)

@@ -8,7 +8,6 @@ error they cause stands out of the 160x120 estimates' own).
 """
 import jax
 import numpy as np
-import pytest
 
 from jaxvo import geometry
 from jaxvo.camera import Camera, DEFAULT, camera_for_size
