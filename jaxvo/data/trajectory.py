@@ -54,7 +54,11 @@ def chain(T_cur_ref_list: Iterable, T_world_first=None) -> np.ndarray:
 
 def format_pose_line(stamp: float, T_world_cam) -> str:
     """One TUM line ``timestamp tx ty tz qx qy qz qw`` (timestamp to 1e-6 s, 9 digits otherwise)."""
-    T = geometry.checked_transform(T_world_cam, "pose")
+    return _pose_line(stamp, geometry.checked_transform(T_world_cam, "pose"))
+
+
+def _pose_line(stamp: float, T: np.ndarray) -> str:
+    """:func:`format_pose_line` of an already checked (4, 4) float64 pose."""
     q, t = geometry.quat_trans_from_transform(T)
     return (f"{float(stamp):.6f} " + " ".join(f"{x:.9f}" for x in t) + " "
             + " ".join(f"{x:.9f}" for x in q))
@@ -175,7 +179,7 @@ class TrajectoryWriter:
         pose is a guess (its estimate failed and the previous pose was kept): a comment line
         ``# held <stamp>`` before it says so (:func:`read_held`), which TUM readers skip."""
         T = geometry.checked_transform(T_world_cam, "T_world_cam")
-        line = format_pose_line(stamp, T)
+        line = _pose_line(stamp, T)
         if held:
             self._write_line(f"{HELD_MARK} {line.split()[0]}")
         self._write_line(line)
