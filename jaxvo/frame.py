@@ -24,6 +24,7 @@ import numpy as np
 from jaxvo.validation import check_values, choice, number
 
 __all__ = ["Frame", "make_frame", "undistort", "undistort_images", "luminance", "validate_pair", "validate_frame", "check_frame",
+           "has_depth",
            "suggest_depth_scale",
            "DEPTH_UNIT_LIMIT", "PLAUSIBLE_DEPTH", "COMMON_DEPTH_SCALES", "COLOR_ORDERS"]
 
@@ -112,7 +113,9 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
         value / depth_scale = metres (5000 for TUM, Bonn and ETH3D PNGs, 1000 for millimetres);
         without it the ValueError names the scale that fits. Float depth is metres, or is
         divided by ``depth_scale`` when one is given. NaN, inf and negative values become 0
-        (invalid).
+        (invalid). Depth without any valid pixel (a covered sensor, or a scene inside its minimum
+        range) makes a frame too, one without depth (:func:`has_depth` False): the odometry holds
+        its pose, and :func:`jaxvo.estimate_motion` refuses it.
       color_order: "rgb" (default), or "bgr" for OpenCV images (``cv2.imread``); the same as
         :meth:`Frame.from_cv2`. Grey images ignore it.
       source: a name (e.g. the file) to put in error messages.
@@ -120,8 +123,7 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
 
     Raises:
       ValueError: wrong shapes or dtypes, mismatched sizes, an unknown color_order, integer
-        depth without depth_scale, no valid depth at all, depth whose range says the scale
-        is wrong (e.g. millimetres passed as metres), or a float image on [0, 1] (not 0-255).
+        depth without depth_scale, depth whose range says the scale is wrong (e.g. millimetres passed as metres), or a float image on [0, 1] (not 0-255).
     """
     where = f"{source}: " if source else ""
     check_values({"color_order": color_order}, _ORDER_RULE, f"{where}make_frame")
@@ -145,10 +147,9 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
         z = z / np.float32(depth_scale)
     z = np.where(np.isfinite(z) & (z > 0), z, 0.0).astype(np.float32)
     valid = z > 0
-    if not valid.any():
-        raise ValueError(f"{where}depth has no valid pixel (all zero, negative or NaN)")
-    med = float(np.median(z[valid]))
-    if depth_scale is None and np.issubdtype(d.dtype, np.integer):
+    # without a valid pixel there is no median to check the scale by: the frame has no depth
+    med = float(np.median(z[valid])) if valid.any() else 0.0
+    if valid.any() and depth_scale is None and np.issubdtype(d.dtype, np.integer):
         s = suggest_depth_scale(med)
         raise ValueError(f"{where}depth is {d.dtype} (sensor units) and no depth_scale was given: pass "
                          f"depth_scale={s:g} (value / {s:g} = metres: median {med / s:.2f} m); 5000 for TUM, "
@@ -285,17 +286,29 @@ def _check_camera(f, camera) -> None:
         raise ValueError(f"camera intrinsics are for {camera.width}x{camera.height} but the images are {w}x{h}")
 
 
-def _check_depth(f, what: str) -> None:
+def has_depth(frame, what: str = "frame") -> bool:
+    """Whether ``frame`` has a valid depth pixel (in (0, :data:`DEPTH_UNIT_LIMIT`] m); True for a
+    frame whose depth is traced (inside a user's jit: its values cannot be read). A frame without
+    one (a covered sensor, a scene inside its minimum range) cannot take part in an estimate.
+
+    Raises ValueError naming ``what`` where the depth has no valid pixel because it is in another
+    unit (finite values, all beyond the limit: millimetres?), not because the sensor saw nothing."""
     try:
-        d = np.asarray(f.depth)
+        d = np.asarray(frame.depth)
     except Exception:  # a tracer: cannot check values
-        return
-    if not _has_valid_depth(d):
-        beyond = d[(d > DEPTH_UNIT_LIMIT) & (d < np.inf)]
-        if beyond.size:
-            raise ValueError(f"{what}: depth has no pixel within 0-{DEPTH_UNIT_LIMIT:g} m (median "
-                             f"{float(np.median(beyond)):.4g}): a Frame's depth is metres; millimetres? "
-                             f"jaxvo.make_frame(image, depth, depth_scale=1000) converts")
+        return True
+    if _has_valid_depth(d):
+        return True
+    beyond = d[(d > DEPTH_UNIT_LIMIT) & (d < np.inf)]
+    if beyond.size:
+        raise ValueError(f"{what}: depth has no pixel within 0-{DEPTH_UNIT_LIMIT:g} m (median "
+                         f"{float(np.median(beyond)):.4g}): a Frame's depth is metres; millimetres? "
+                         f"jaxvo.make_frame(image, depth, depth_scale=1000) converts")
+    return False
+
+
+def _check_depth(f, what: str) -> None:
+    if not has_depth(f, what):
         raise ValueError(f"{what}: depth has no valid pixel (all zero, negative or NaN)")
 
 

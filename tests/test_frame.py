@@ -88,10 +88,16 @@ def test_non_numeric_raises():
     _raises(r"numeric", _rgb(), np.empty((H, W), dtype=object))
 
 
-def test_no_valid_depth_raises():
-    _raises(r"no valid", _rgb(), np.zeros((H, W), np.uint16))
-    _raises(r"no valid", _rgb(), np.full((H, W), np.nan, np.float32))
-    _raises(r"no valid", _rgb(), -np.ones((H, W), np.float32))
+def test_depth_without_a_valid_pixel_makes_a_frame_without_depth():
+    """A covered sensor's depth (all zero, NaN or negative) is a frame, one without depth: the
+    odometry holds it; the estimator refuses it, naming the frame."""
+    from jaxvo.frame import has_depth
+    for d in (np.zeros((H, W), np.uint16), np.full((H, W), np.nan, np.float32), -np.ones((H, W), np.float32)):
+        f = make_frame(_rgb(), d, 5000 if d.dtype == np.uint16 else None)
+        assert not has_depth(f) and f.depth.dtype == np.float32 and not f.depth.any()
+        with pytest.raises(ValueError, match=r"^current frame: depth has no valid pixel"):
+            validate_pair(make_frame(_rgb(), _depth_u16(), 5000), f, camera_for_size(DEFAULT, W, H))
+    assert has_depth(make_frame(_rgb(), _depth_u16(), 5000))
 
 
 def test_millimetres_passed_as_metres_raises_scale_error():
@@ -103,8 +109,8 @@ def test_millimetres_passed_as_metres_raises_scale_error():
 
 
 def test_source_is_named_in_the_message():
-    with pytest.raises(ValueError, match=r"^depth/0001\.png: .*no valid"):
-        make_frame(_rgb(), np.zeros((H, W), np.uint16), source="depth/0001.png")
+    with pytest.raises(ValueError, match=r"^depth/0001\.png: .*no depth_scale"):
+        make_frame(_rgb(), _depth_u16(), source="depth/0001.png")
 
 
 def test_non_finite_intensity_raises():
@@ -241,8 +247,8 @@ def test_bgr_image_via_from_cv2_equals_the_rgb_path():
     # from_cv2 passes the other arguments on
     m = Frame.from_cv2(bgr, d, 5000, mask=np.ones((H, W), np.uint8)).mask
     assert m.dtype == bool and m.all()
-    with pytest.raises(ValueError, match=r"^frame\.png: .*no valid"):
-        Frame.from_cv2(bgr, np.zeros_like(d), 5000, source="frame.png")
+    with pytest.raises(ValueError, match=r"^frame\.png: .*wrong scale"):
+        Frame.from_cv2(bgr, d, 1.0, source="frame.png")
 
 
 @pytest.mark.parametrize("order", ["BGR", "gbr", "", None, 1])

@@ -44,7 +44,8 @@ exits with code 130. Outputs that would replace or land inside an input are refu
 (--force to allow).
 
 At the end a summary: frames, failures (pairs whose estimate was flagged invalid: too few
-inliers, too little depth or texture agreement, or ill-conditioned), mean inlier ratio, compile time (the first pair's wall time,
+inliers, too little depth or texture agreement, or ill-conditioned; and frames whose depth image
+has no valid pixel, a covered sensor, held without an estimate), mean inlier ratio, compile time (the first pair's wall time,
 which includes JAX compilation) and frames/s after it (the progress bar's fps). A run in which
 more than half of the pairs failed produced nothing usable (a wrong --depth-scale, masks that
 hide every pixel): after the summary one error line names the likely cause, the trajectory is
@@ -294,7 +295,8 @@ def _print_run_summary(run):
     if res.interrupted:
         lines.append("interrupted (Ctrl-C): summary of the frames done so far (the trajectory keeps its "
                      ".partial name)")
-    lines.append(f"frames        {len(res.stamps)} ({res.pairs} pairs), failures {res.failures}")
+    blank = f" ({res.without_depth} frames without depth, held)" if res.without_depth else ""
+    lines.append(f"frames        {len(res.stamps)} ({res.pairs} pairs), failures {res.failures}{blank}")
     lines.append(f"inlier ratio  {fmt(float(np.mean(res.inlier_ratio)) if res.pairs else float('nan'), 3)} (mean)")
     lines.append(f"compile       {fmt(res.compile_s, 1)} s (first pair, compilation included)")
     lines.append(f"speed         {fmt(res.fps, 2)} frames/s after compilation")

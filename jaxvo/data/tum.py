@@ -30,7 +30,7 @@ from jaxvo.data.groundtruth import is_bonn_sequence, read_groundtruth
 from jaxvo.data.masks import match_masks, read_frame_mask
 from jaxvo.data.stamps import associate, interpolate_poses
 from jaxvo.data.textfiles import read_file_list
-from jaxvo.frame import Frame, make_frame, undistort
+from jaxvo.frame import Frame, has_depth, make_frame, undistort
 from jaxvo.validation import Rule, check_values, integer, number
 
 __all__ = ["TumSequence", "check_reader_options"]
@@ -247,8 +247,13 @@ class TumSequence:
         intensity (H, W) float32 0-255, depth (H, W) float32 metres (0 = invalid), mask (H, W) bool
         from ``mask_dir`` or None, time and depth_time the rgb.txt and depth.txt timestamps.
 
+        A depth image without any valid pixel (a covered sensor, a scene inside its minimum
+        range) gives a frame without depth (:func:`jaxvo.frame.has_depth` False), whose pose the
+        odometry holds.
+
         Raises DatasetError naming the file for undecodable images, non-16-bit depth, size
-        mismatches (also with the camera's width/height) and depth without any valid pixel.
+        mismatches (also with the camera's width/height), and the first frame with depth whose
+        depth scale is implausible.
         """
         rgb, depth = self.read_images(i)
         i = self._check_index(i)
@@ -267,7 +272,7 @@ class TumSequence:
         # the capture times of both images, which the odometry may align (TrackConfig.retime_depth)
         fr = undistort(fr, self.camera, self.lens)._replace(time=float(self.timestamps[i]),
                                                            depth_time=float(self.depth_timestamps[i]))
-        if not self._depth_checked:
+        if not self._depth_checked and has_depth(fr):   # a frame without depth has no scale to check
             check_depth_scale(fr.depth, self.depth_scale, self.depth_paths[i], explicit=self._scale_given)
             self._depth_checked = True
         return fr

@@ -196,8 +196,9 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
         within ``max_dt`` s. Frames without a pose are skipped.
       every: use every ``every``-th frame that has a pose.
       voxel: voxel size (m) for downsampling, None / 0 = keep every point.
-      labels: "estimate" (outliers of ``estimate_motion`` on (i, i+1) with ``config``,
-        default ``Config()`` = ransac; key ``fold_in(key(seed), i)``), "hindsight" (the masks of
+      labels: "estimate" (outliers of ``estimate_motion`` on (i, i+1), or (i, i-1) where frame i+1
+        has no depth, with ``config``, default ``Config()`` = ransac; key ``fold_in(key(seed), i)``;
+        none where neither pair has depth), "hindsight" (the masks of
         :func:`jaxvo.tracking.hindsight.sequence_masks` from the trajectory's poses of every matched
         frame, ``config``'s thresholds), "masks" (the sequence's masks/), or None (everything
         static).
@@ -207,7 +208,7 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
     Raises ValueError / DatasetError on bad input (no frame with a pose, no masks, ...).
     """
     from jaxvo.data import DatasetError
-    from jaxvo.frame import make_frame, undistort_images
+    from jaxvo.frame import has_depth, make_frame, undistort_images
 
     t0 = time.perf_counter()
     if every < 1:
@@ -266,10 +267,13 @@ def build_map(seq, traj_stamps, traj_poses, every: int = 5, voxel: Optional[floa
         i = int(i)
         rgb, depth, fr = load(i)
         ratio = float("nan")
-        if labels == "estimate" and len(seq) > 1:
-            j = i + 1 if i + 1 < len(seq) else i - 1
-            other = load(j)[2]
-            est = estimate_motion(fr, other, cam, config, jax.random.fold_in(key, i))
+        # the next frame, else the one before, where both have depth (a covered sensor's frame has none)
+        pair = [j for j in (i + 1, i - 1) if labels == "estimate" and 0 <= j < len(seq) and has_depth(fr)
+                and has_depth(load(j)[2])][:1]
+        if labels == "estimate" and not pair:
+            moving_img = np.zeros((H, W), bool)
+        elif labels == "estimate":
+            est = estimate_motion(fr, load(pair[0])[2], cam, config, jax.random.fold_in(key, i))
             moving_img = moving_mask(est, W, H)
             ratio = float(est.inlier_ratio)
         elif labels == "hindsight":

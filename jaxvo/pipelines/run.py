@@ -30,6 +30,7 @@ import numpy as np
 from jaxvo.data.outputs import check_output, check_output_folder, finish, partial_path, write_text
 from jaxvo.data import DatasetError, TumSequence, find_sequences, open_sequence
 from jaxvo.evaluation.scoring import TrajectoryErrors, trajectory_errors
+from jaxvo.frame import has_depth
 from jaxvo.pipelines.mapping import moving_mask
 from jaxvo.pipelines.messages import one_line
 from jaxvo.pipelines.sequences import check_camera_size
@@ -65,6 +66,8 @@ class RunResult:
     done (reading, compiling and running it); fps: pairs per second after the first pair (NaN
     with fewer than 2 pairs); interrupted: ended by Ctrl-C; error: the one-line reason a
     sequence of a batch stopped early (a frame that does not read), None when it did not.
+    without_depth: how many of the failed pairs' current frames had no depth (a covered sensor:
+    held without an estimate).
     """
     method: str
     stamps: np.ndarray
@@ -76,6 +79,7 @@ class RunResult:
     wall_s: float
     interrupted: bool = False
     error: Optional[str] = None
+    without_depth: int = 0
 
     @property
     def pairs(self) -> int:
@@ -108,6 +112,7 @@ class _Recorder:
         self.seq, self.method, self.on_pair, self.pbar = seq, config.method, on_pair, pbar
         self.stamps = np.asarray(seq.timestamps, np.float64)
         self.mask_dir, self.mask_index, self.error = None, [], None
+        self.without_depth = 0
         if save_masks is not None:
             self.mask_dir = Path(save_masks)
             try:
@@ -149,13 +154,15 @@ class _Recorder:
         import cv2
 
         i, est, pose, ref = step.frame - 1, step.estimate, step.T_world_cur, step.reference
-        self.ratios.append(float(est.inlier_ratio))
+        # no estimate: the frame has no depth, and was held
+        self.ratios.append(0.0 if est is None else float(est.inlier_ratio))
+        self.without_depth += est is None
         self.valids.append(bool(step.valid))
         # the frames this step settles, in order; the others wait
         self.open_poses.update({step.frame: pose} if step.refined is None else step.refined)
         for k in range(len(self.poses), step.settled):
             self._line(k, self.open_poses.pop(k))
-        if self.mask_dir is not None:
+        if self.mask_dir is not None and est is not None:
             m = moving_mask(est, self.seq.camera.width, self.seq.camera.height, step.static_mask)
             name = mask_name(self.stamps[ref], self.stamps[i + 1])
             p = self.mask_dir / name
@@ -189,7 +196,7 @@ class _Recorder:
         fps = self.fps()
         return RunResult(self.method, self.stamps[:n].copy(), np.stack(self.poses), np.asarray(self.ratios),
                          np.asarray(self.valids, bool), compile_s, fps, time.perf_counter() - self.t0, interrupted,
-                         self.error)
+                         self.error, self.without_depth)
 
 
 def run_sequence(seq: TumSequence, config, seed: int = 0, out=None, save_masks=None,
@@ -318,7 +325,7 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
         if len(seq) < 2:
             raise DatasetError(f"{dirs[0]}: only {len(seq)} frame(s) to use, need at least 2")
         check_camera_size(seq)
-        seq.check(1)                 # a bad first image is reported before compiling
+        _check_first_frame(seq)      # a bad first image is reported before compiling
         seq.groundtruth              # and so is ground truth that does not cover the frames
         return RunPlan(setup, (seq,), (out,), ((0,),), None if save_masks is None else Path(save_masks))
     seqs = [setup.reader.open(d) for d in dirs]
@@ -330,7 +337,7 @@ def plan_run(sequence_dirs: Sequence, setup: RunSetup, out=None, out_dir=".", sa
             raise DatasetError(f"{seq.path}: only {len(seq)} frame(s) to use, need at least 2")
         check_output(o, [s.path for s in seqs] + [config_file], force, "--out-dir")
         check_camera_size(seq)
-        seq.check(1)
+        _check_first_frame(seq)
     groups: dict = {}
     for k, seq in enumerate(seqs):
         groups.setdefault((seq.camera.width, seq.camera.height), []).append(k)
@@ -376,6 +383,14 @@ def count_poses(path) -> int:
         return 0
 
 
+def _check_first_frame(seq: TumSequence) -> None:
+    """Read the sequence's first frame (DatasetError naming the file where it does not read), which
+    the odometry starts from and so must have depth, where later frames without depth are held."""
+    if not has_depth(seq.frame(0), str(seq.depth_paths[0])):
+        raise DatasetError(f"{seq.depth_paths[0]}: depth has no valid pixel (all zero, negative or NaN), and the "
+                           f"first frame must have depth: the odometry starts from it (--start N begins later)")
+
+
 def unusable_message(seq: TumSequence, res: RunResult, trajectory) -> Optional[str]:
     """The one-line error of a run that produced nothing usable (:attr:`RunResult.unusable`:
     more than half of the pairs failed), naming the likely cause from the first frame: masks that
@@ -394,7 +409,10 @@ def unusable_message(seq: TumSequence, res: RunResult, trajectory) -> Optional[s
         used = float((read_frame_mask(mp, depth.shape) > 0).mean()) if mp is not None else 1.0
     except (DatasetError, ValueError, OSError):
         median, used = float("nan"), 1.0
-    if used < 0.05:
+    if 2 * res.without_depth > res.pairs:
+        cause = (f"{res.without_depth} of the frames have no depth (every depth pixel zero: the sensor "
+                 f"covered or too close, or depth images that do not belong to the recording)")
+    elif used < 0.05:
         cause = (f"the masks of {seq.mask_dir} leave {100 * used:.1f} % of the pixels (nonzero = use the pixel; "
                  f"a 16-bit 0/1 mask reads as all 0: write 8-bit 0/255)")
     elif not valid.size:

@@ -107,7 +107,11 @@ def track_batch(sequences: Sequence[Iterable], cameras: Sequence[Camera], config
                 active.remove(s)
                 continue
             pair = odos[s].prepare(frame)
-            if pair is not None:
+            if pair is not None and not pair.depth:   # a frame without depth: nothing to estimate
+                step = odos[s].finish(pair, None)
+                if callbacks[s] is not None:
+                    callbacks[s](step)
+            elif pair is not None:
                 pairs[s] = pair
         if not pairs:
             continue

@@ -11,7 +11,7 @@ import numpy as np
 from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
-from jaxvo.frame import Frame, check_frame
+from jaxvo.frame import Frame, check_frame, has_depth
 from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, num_levels, \
     prepare_frame
 from jaxvo.tracking import depth_time, segmentation, window
@@ -23,7 +23,8 @@ class Track(NamedTuple):
     poses: (N, 4, 4) float64 T_world_cam, the first frame at ``T_world_first`` (identity by default):
     ``refined`` (``TrackConfig.poses`` "refined", the default) or ``tracked`` ("tracked").
     relative: (N-1, 4, 4) float64 T_cur_ref of each consecutive pair (frame i -> i+1), from the poses.
-    inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed and was held).
+    inlier_ratio, valid: (N-1,) of the estimate of frame i+1 (valid False: it failed, or the frame
+    has no depth, and was held; inlier ratio 0 without depth).
     reference: (N-1,) int, the index of the frame that frame i+1 was estimated against.
     refined: (N, 4, 4) float64 T_world_cam refined in hindsight (:meth:`Odometry.refined_poses`):
     each frame on the latest anchor of the reference it was posed on, a frame that became a
@@ -48,9 +49,10 @@ class TrackStep(NamedTuple):
     pixels: the estimate's masks at its finest level, coarser for the calm mode's estimates where
     ``TrackConfig.calm_min_width`` is set; :func:`jaxvo.pipelines.mapping.outlier_mask` brings them
     to full size); -1 for the first frame. estimate: the :class:`MotionEstimate`
-    (T_cur_ref = T_frame_reference), None for the first frame.
+    (T_cur_ref = T_frame_reference), None for the first frame and for a frame without depth (a
+    covered sensor, :func:`jaxvo.frame.has_depth`), which is held.
     T_world_cur: (4, 4) float64 pose given to the frame. valid: False if the estimate failed
-    and the pose was held (see :class:`TrackConfig`).
+    (or the frame has no depth) and the pose was held (see :class:`TrackConfig`).
     static_mask: (H, W) bool, the reference pixels the segmentation trusted as static for
     this estimate (all True without segmentation).
     settled: frames [0, settled) hold their final pose in ``Track.poses``: with
@@ -185,7 +187,9 @@ class PairInputs(NamedTuple):
     ``estimate_motion(ref, cur, camera, config, key, init=init, weights=weights)``.
     T_ref_prev: (4, 4) float64, the previous frame's pose relative to the reference (host).
     trust: (H, W) the segmentation's static weight of the reference (None without one); the
-    estimate gets it as ``weights`` except in the calm mode (see TrackConfig.calm_fraction)."""
+    estimate gets it as ``weights`` except in the calm mode (see TrackConfig.calm_fraction).
+    depth: False for a current frame without depth (:func:`jaxvo.frame.has_depth`): there is
+    nothing to estimate, and :meth:`Odometry.finish` takes None for its estimate and holds the frame."""
     ref: Frame
     cur: Frame
     key: jnp.ndarray
@@ -193,6 +197,7 @@ class PairInputs(NamedTuple):
     weights: Optional[jnp.ndarray]
     T_ref_prev: np.ndarray
     trust: Optional[jnp.ndarray] = None
+    depth: bool = True
 
 
 class Odometry:
@@ -212,7 +217,9 @@ class Odometry:
     (:mod:`jaxvo.tracking.window`), so the poses later frames chain from rest on several estimates,
     not one. A frame that fails against its reference is estimated against the window's older
     keyframes before it is held (``TrackConfig.recover``), and kept where two of those estimates agree
-    on its pose even if they are jumps from its guess. Poses already returned never change;
+    on its pose even if they are jumps from its guess. A frame without depth (a person covering the
+    sensor) is held without an estimate and never becomes a reference; the frames after it are
+    estimated from its held pose as after a failed estimate. Poses already returned never change;
     :meth:`refined_poses` (``Track.refined``) gives them refined in hindsight, each on its
     reference's latest anchor.
 
@@ -288,15 +295,28 @@ class Odometry:
         pair = self.prepare(frame)
         if pair is None:
             return TrackStep(0, -1, None, self._first, True, None, settled=1)
+        if not pair.depth:
+            return self.finish(pair, None)
         j = len(self.poses)
         return self.finish(pair, self._estimate("track", self._ref, j, pair.key, pair.init, pair.weights))
 
     def prepare(self, frame: Frame) -> Optional["PairInputs"]:
         """The first half of :meth:`add`: record the frame and return the inputs of its estimate
         (None for the first frame, whose pose is set). Pass the estimate of those inputs to
-        :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch)."""
+        :meth:`finish` before the next frame (e.g. estimates of several sequences as one batch),
+        or None where the inputs say the frame has no depth (``PairInputs.depth`` False).
+
+        A frame without depth (a covered sensor: :func:`jaxvo.frame.has_depth`) is held as a failed
+        estimate is, and never becomes a reference; the first frame must have depth (ValueError)."""
         check_frame(frame)   # ValueError naming what was passed (e.g. a (timestamp, Frame) pair)
         j = len(self.poses)
+        if not has_depth(frame, f"frame {j}"):
+            if j == 0:
+                raise ValueError("frame 0: depth has no valid pixel (all zero, negative or NaN): the odometry "
+                                 "starts from a frame with depth")
+            T_ref_prev = self._ref_prev(j)
+            return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
+                              geometry.inverse(T_ref_prev), None, T_ref_prev, None, depth=False)
         self._frames[j] = frame
         # its pyramid, which every estimate it takes part in reads, and which holds the segmentation's inputs
         start = time.perf_counter()
@@ -315,11 +335,7 @@ class Odometry:
             # first pose is out, so that on a new machine its compilation does not share the cores
             # with the estimator's before it, nor its loading a warm one's (docs/decisions/start-up.md)
             window.compile_ahead(self.policy.window)
-        # the previous frame's pose relative to the reference, both from one chain: until a frame is
-        # posed from the reference's refined anchor, the previous poses rest on the anchor it had
-        # before the window moved it (_windowed_anchor)
-        T_world_ref = self._chained.get(self._ref, self._chain_pose(self._ref))
-        T_ref_prev = geometry.inverse(T_world_ref) @ self.poses[j - 1]
+        T_ref_prev = self._ref_prev(j)
         trust = self.static_map.trust(tuple(frame.depth.shape))
         # calm mode: the few pixels the map marks dynamic on a static scene are depth edges,
         # and leaving them out costs accuracy (docs/decisions/calm-mode.md)
@@ -327,9 +343,20 @@ class Odometry:
         return PairInputs(self._frames[self._ref], frame, jax.random.fold_in(self.key, j - 1),
                           geometry.inverse(T_ref_prev), weights, T_ref_prev, trust)
 
-    def finish(self, pair: "PairInputs", est: MotionEstimate) -> TrackStep:
+    def _ref_prev(self, j: int) -> np.ndarray:
+        """(4, 4) float64 T_ref_prev: frame j - 1's pose relative to the reference, both from one
+        chain: until a frame is posed from the reference's refined anchor, the previous poses rest
+        on the anchor it had before the window moved it (:meth:`_windowed_anchor`)."""
+        T_world_ref = self._chained.get(self._ref, self._chain_pose(self._ref))
+        return geometry.inverse(T_world_ref) @ self.poses[j - 1]
+
+    def finish(self, pair: "PairInputs", est: Optional[MotionEstimate]) -> TrackStep:
         """The second half of :meth:`add`: chain the estimate of :meth:`prepare`'s inputs and
-        update the policy and segmentation; returns the frame's :class:`TrackStep`."""
+        update the policy and segmentation; returns the frame's :class:`TrackStep`. ``est`` is
+        None for a frame without depth (``pair.depth`` False): it is held (as a failed estimate
+        is: ``TrackStep.estimate`` None, ``valid`` False)."""
+        if not pair.depth:
+            return self._without_depth()
         j, frame, T_ref_prev, weights = len(self.poses), pair.cur, pair.T_ref_prev, pair.trust
         policy, ref, poses = self.policy, self._ref, self.poses
         T_world_ref = self._chain_pose(ref)
@@ -373,7 +400,25 @@ class Odometry:
         if used != ref:   # the switch tests read the motion from the current reference
             T = geometry.inverse(pose) @ T_world_ref
         self._maybe_switch(j, T, ratio_static, dynamic)
-        if policy.poses == "tracked":
+        return self._settle(result)
+
+    def _without_depth(self) -> TrackStep:
+        """The step of the current frame, which has no depth: no estimate, its pose held
+        (:meth:`_held`), its reference unchanged, and the reference choice as after a failed estimate."""
+        j, ref = len(self.poses), self._ref
+        pose = self._held(j)
+        self.poses.append(pose)
+        self._posed_on[j] = (ref, self._chain_pose(ref))
+        self.valid.append(False)
+        self.inlier_ratio.append(0.0)
+        self.references.append(ref)
+        self._maybe_switch(j, geometry.inverse(pose) @ self._chain_pose(ref), 0.0, 1.0)
+        return self._settle(TrackStep(j, ref, None, pose, False, None))
+
+    def _settle(self, result: TrackStep) -> TrackStep:
+        """``result`` (the step of the frame just posed) with the frames it settles, and their refined poses."""
+        j = result.frame
+        if self.policy.poses == "tracked":
             return result._replace(settled=j + 1)
         first = self._settled
         return result._replace(settled=self.settled(), refined={i: self._refined_pose(i) for i in range(first, j + 1)})
@@ -657,7 +702,10 @@ class Odometry:
             if good is not None:
                 self._set_reference(good, j)
             elif j - ref >= policy.restart:
-                self._set_reference(j - policy.lag, j)  # lost for long: restart from the held poses
+                # lost for long: restart from the held poses, at a frame with depth (one kept)
+                held = [i for i in range(ref + 1, j - policy.lag + 1) if i in self._frames]
+                if held:
+                    self._set_reference(held[-1], j)
         keep_depth = self._ref - (1 << policy.history) if policy.history else self._ref
         for old in [i for i in self._frames if i < self._ref and i not in self._window]:
             del self._frames[old]

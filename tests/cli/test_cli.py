@@ -131,6 +131,31 @@ def test_8bit_depth(tmp_path, synth_seq):
     _assert_error(_invoke(["run", seq, "--out", tmp_path / "t.txt"]), bad.name, "16-bit")
 
 
+def _depth_files(seq: Path):
+    return [seq / ln.split()[1] for ln in (seq / "depth.txt").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+
+
+def test_a_blank_depth_image_is_held_and_the_run_goes_on(tmp_path, synth_seq):
+    """A depth image without a valid pixel (a covered sensor) in the middle of a recording: the run
+    ends normally with one pose per frame, that frame's marked held and counted in the summary;
+    in the first frame it is refused with one error line naming the file."""
+    from jaxvo.data.trajectory import read_held
+    seq = _copy_seq(synth_seq, tmp_path / "s", frames=8)
+    depths = _depth_files(seq)
+    assert cv2.imwrite(str(depths[3]), np.zeros((120, 160), np.uint16))
+    out = tmp_path / "t.txt"
+    r = _invoke(["run", seq, "--out", out, "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "(1 frames without depth, held)" in r.output, r.output
+    stamps, _ = read_tum_trajectory(out)
+    assert len(stamps) == 8
+    assert stamps[3] in read_held(out)
+    assert cv2.imwrite(str(depths[0]), np.zeros((120, 160), np.uint16))
+    _assert_error(_invoke(["run", seq, "--out", tmp_path / "u.txt", "--no-progress"]), depths[0].name,
+                  "depth has no valid pixel", "the first frame must have depth", "--start")
+
+
 def test_no_associations(tmp_path, synth_seq):
     seq = _copy_seq(synth_seq, tmp_path / "s")
     lines = [ln.split() for ln in (seq / "depth.txt").read_text().splitlines() if not ln.startswith("#")]

@@ -305,12 +305,20 @@ def test_size_mismatch(tmp_path):
     assert str(victim) in str(e.value) and "depth size 8x8 does not match colour image" in str(e.value)
 
 
-def test_depth_without_valid_pixel(tmp_path):
-    d = make_seq(tmp_path, n=2)
+def test_depth_without_valid_pixel_reads_as_a_frame_without_depth(tmp_path):
+    """A covered sensor's all-zero depth image is a frame without depth (the odometry holds it);
+    the depth scale is checked on the first frame that has depth."""
+    from jaxvo.frame import has_depth
+    d = make_seq(tmp_path, n=3)
     victim = sorted((d / "depth").iterdir())[0]
     cv2.imwrite(str(victim), np.zeros((H, W), np.uint16))
-    with pytest.raises(DatasetError, match=rf"{victim.name}: depth has no valid pixel"):
-        TumSequence(d, camera=SMALL).frame(0)
+    seq = TumSequence(d, camera=SMALL)
+    assert not has_depth(seq.frame(0)) and has_depth(seq.frame(1))
+    # read in centimetres, the first frame with depth is 50 m away
+    seq = TumSequence(d, camera=SMALL, depth_scale=100)
+    seq.frame(0)
+    with pytest.raises(DatasetError, match=r"median valid depth .* is implausible"):
+        seq.frame(1)
 
 
 def test_no_association(tmp_path):

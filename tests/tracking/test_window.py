@@ -19,6 +19,7 @@ from jaxvo.evaluation import metrics
 from jaxvo.frame import make_frame
 from jaxvo.synthetic import SensorModel, make_sequence
 from jaxvo.tracking import window
+from jaxvo.tracking.batch import track_batch
 from jaxvo.tracking.odometry import Odometry
 
 K = 4
@@ -135,7 +136,7 @@ def test_fuse_poses_is_the_information_weighted_step_between_two_estimates():
 CAM = camera_for_size(DEFAULT, 160, 120)
 
 
-def _frames(name, n, seed, blind=()):
+def _frames(name, n, seed, blind=(), blank=()):
     seq = make_sequence(name, frames=n, seed=seed, camera=CAM)
     rng = np.random.default_rng(seed)
     frames = []
@@ -143,6 +144,8 @@ def _frames(name, n, seed, blind=()):
         r = seq.render(k, sensor=SensorModel(), rng=rng)
         if k in blind:      # something flat and plain right in front of the lens
             frames.append(make_frame(np.full_like(r.rgb, 128), np.full_like(r.depth, 0.5)))
+        elif k in blank:    # a hand over the sensor: dark, and no depth at all
+            frames.append(make_frame(np.full_like(r.rgb, 10), np.zeros_like(r.depth)))
         else:
             frames.append(make_frame(r.rgb, r.depth))
     return seq, frames
@@ -332,6 +335,37 @@ def test_a_covered_stretch_recovers_against_older_keyframes():
     # the first frames after it (references[i] is frame i + 1's) against a keyframe from before it
     assert any(r < 30 for r in on.references[blind.stop - 1: blind.stop + 5])
     assert _final_error(seq, on) < 0.5 * _final_error(seq, off)
+
+
+@pytest.mark.parametrize("blank", [range(30, 36), range(30, 50)])
+def test_frames_without_depth_are_held_and_the_track_recovers(blank):
+    """A sensor covered for 0.2 s or 0.67 s (longer than TrackConfig.restart): its frames are held
+    without an estimate and never become a reference (nor does the restart move to one); the
+    first frame after it is estimated against a frame from before it, and the track goes on. The
+    camera moves 0.045 m and 0.21 m meanwhile: a track that did not pick up that motion again would
+    end about that far off."""
+    seq, frames = _frames("seq0", 70, 2, blank=blank)
+    steps = []
+    odo = Odometry(CAM, key=jax.random.PRNGKey(0), policy=TrackConfig())
+    for f in frames:
+        steps.append(odo.add(f))
+    for k in blank:
+        assert steps[k].estimate is None and not steps[k].valid and odo.inlier_ratio[k - 1] == 0.0
+    assert not set(blank) & (set(odo.references) | set(odo._window))
+    assert odo.references[blank.stop - 1] < blank.start and all(odo.valid[blank.stop - 1:])
+    moved = np.linalg.norm((geometry.inverse(seq.poses[blank.start - 1]) @ seq.poses[blank.stop])[:3, 3])
+    clean = _final_error(seq, _run(_frames("seq0", 70, 2)[1], TrackConfig()))
+    assert _final_error(seq, odo) < clean + 0.5 * moved, (_final_error(seq, odo), clean, moved)
+    # the batched path holds them alike (its poses within the batch's float rounding)
+    batched = track_batch([frames], [CAM], keys=[jax.random.PRNGKey(0)])[0]
+    assert batched.valid.tolist() == odo.valid and batched.reference.tolist() == odo.references
+    np.testing.assert_allclose(batched.poses, odo.result().poses, atol=1e-3)
+
+
+def test_a_first_frame_without_depth_is_refused():
+    seq, frames = _frames("seq0", 2, 2, blank=[0])
+    with pytest.raises(ValueError, match="frame 0: depth has no valid pixel.*starts from a frame with depth"):
+        _run(frames, TrackConfig())
 
 
 class _Recording(Odometry):
