@@ -83,22 +83,31 @@ def _offset_room(seed):
     return seq, frames
 
 
-def _ate(seq, frames, policy):
+def _errors(seq, frames, policy):
+    """(N-1,) m: each consecutive pair's translation error against the ground truth, and the ATE."""
     odo = Odometry(seq.camera, key=jax.random.PRNGKey(1), policy=policy)
     for f in frames:
         odo.add(f)
-    return metrics.ate(seq.timestamps, seq.poses, seq.timestamps, np.stack(odo.poses)).rmse
+    P = np.stack(odo.poses)
+    rel = [geometry.inverse(geometry.inverse(seq.poses[k]) @ seq.poses[k + 1]) @ geometry.inverse(P[k]) @ P[k + 1]
+           for k in range(len(P) - 1)]
+    return np.linalg.norm(np.stack(rel)[:, :3, 3], axis=1), metrics.ate(seq.timestamps, seq.poses, seq.timestamps, P).rmse
 
 
 def test_reference_depth_at_the_colour_time_tracks_an_offset_sensor_better():
+    """Each frame's motion is off by the camera's motion between its reference's two capture times
+    as taken: retimed, the median pair error is lower on each room and by a fifth over both. The
+    median, as one failed estimate moves a run's ATE by more than the lever (machines whose float
+    rounding differs fail different frames)."""
     rooms = [_offset_room(seed) for seed in (0, 2)]
-    as_taken = [_ate(seq, frames, TrackConfig()) for seq, frames in rooms]
+    as_taken = [_errors(seq, frames, TrackConfig()) for seq, frames in rooms]
     traces = depth_time._RETIMED.traces
-    retimed = [_ate(seq, frames, TrackConfig(retime_depth=True)) for seq, frames in rooms]
-    assert all(r < a for r, a in zip(retimed, as_taken)), (retimed, as_taken)
-    assert sum(retimed) < 0.75 * sum(as_taken), (retimed, as_taken)
+    retimed = [_errors(seq, frames, TrackConfig(retime_depth=True))[0] for seq, frames in rooms]
+    medians = [(float(np.median(r)), float(np.median(a))) for r, (a, _) in zip(retimed, as_taken)]
+    assert all(r < a for r, a in medians), medians
+    assert np.median(np.concatenate(retimed)) < 0.8 * np.median(np.concatenate([a for a, _ in as_taken])), medians
     assert depth_time._RETIMED.traces - traces <= 1        # one program for the runs, no retrace per frame
     # the same frames with their times dropped: the lever has nothing to align
     seq, frames = rooms[0]
-    untimed = _ate(seq, [f._replace(time=None, depth_time=None) for f in frames], TrackConfig(retime_depth=True))
-    assert untimed == as_taken[0]
+    untimed = _errors(seq, [f._replace(time=None, depth_time=None) for f in frames], TrackConfig(retime_depth=True))
+    assert untimed[1] == as_taken[0][1]
