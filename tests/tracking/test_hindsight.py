@@ -202,8 +202,9 @@ def test_masks_command_leaves_held_poses_out(seq1, tmp_path):
 
 
 def test_masks_command_keeps_what_it_wrote_when_a_frame_is_bad(seq1, tmp_path):
-    """A frame without any valid depth half way stops the command with one error line naming the
-    file; the masks decided before it stay in OUT_DIR.partial, and the line says so."""
+    """A depth image that does not decode half way stops the command with one error line naming the
+    file; the masks decided before it stay in OUT_DIR.partial, and the line says so. (A blank one,
+    a covered sensor's, is a frame without depth: it sees nothing, and the command goes on.)"""
     import shutil
 
     import cv2
@@ -211,6 +212,10 @@ def test_masks_command_keeps_what_it_wrote_when_a_frame_is_bad(seq1, tmp_path):
     shutil.copytree(seq1, d)
     bad = TumSequence(d).depth_paths[6]
     cv2.imwrite(str(bad), np.zeros((H, W), np.uint16))
+    r = CliRunner().invoke(main, ["masks", str(d), str(seq1.parent / "traj.txt"), str(tmp_path / "blank"),
+                                  "--max-frames", "10", "--offsets", "-2,2", "--no-progress"])
+    assert r.exit_code == 0, r.output + r.stderr
+    bad.write_bytes(b"not a png")
     r = CliRunner().invoke(main, ["masks", str(d), str(seq1.parent / "traj.txt"), str(tmp_path / "m"),
                                   "--max-frames", "10", "--offsets", "-2,2", "--no-progress"])
     assert r.exit_code == 2
