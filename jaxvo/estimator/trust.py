@@ -17,8 +17,12 @@ from jaxvo.estimator.residuals import reference_points, residuals
 from jaxvo.estimator.result import MotionEstimate
 from jaxvo.frame import Frame, validate_pair
 
-__all__ = ["TrustStats", "explain_validity", "final_counts", "final_residuals", "pixel_counts", "trust_stats",
-           "trusted", "MIN_VALID_PIXELS"]
+__all__ = ["TrustStats", "conditioning", "explain_validity", "final_counts", "final_residuals", "pixel_counts",
+           "trust_stats", "trusted", "MIN_CONDITIONING", "MIN_VALID_PIXELS"]
+
+#: Smallest ratio of the information matrix's extreme eigenvalues (:func:`conditioning`) that an
+#: estimate is trusted at: below it some direction of the twist is not determined by the pixels.
+MIN_CONDITIONING = 1e-9
 
 #: Fewest reference pixels with valid depth, at the finest level processed, that an estimate
 #: is trusted on. The other statistics are fractions of pixels, and they judge a pose to within
@@ -107,20 +111,26 @@ def pixel_counts(*masks):
     return jax.lax.reduce(ops, (jnp.int32(0),) * len(ops), lambda a, b: tuple(x + y for x, y in zip(a, b)), dims)
 
 
+def conditioning(info, xp=jnp):
+    """Smallest over largest eigenvalue of the (6, 6) information matrix ``info`` (symmetrised),
+    with the array module ``xp``: jax.numpy inside the estimator, numpy on the host."""
+    eig = xp.linalg.eigvalsh(0.5 * (info + info.T))
+    return eig[0] / xp.maximum(eig[-1], 1e-30)
+
+
 def trust_stats(c: _Counts, info, T) -> TrustStats:
     """The :class:`TrustStats` of the final pass's counts, information matrix and pose."""
     def frac(a, b):
         return a / jnp.maximum(b, 1)
-    eig = jnp.linalg.eigvalsh(0.5 * (info + info.T))
     finite = jnp.all(jnp.isfinite(T)) & jnp.all(jnp.isfinite(info))
-    return TrustStats(finite, eig[0] / jnp.maximum(eig[-1], 1e-30), frac(c.valid_inliers, c.valid),
+    return TrustStats(finite, conditioning(info), frac(c.valid_inliers, c.valid),
                       frac(c.overlap, c.valid), frac(c.depth_ok, c.overlap), frac(c.textured, c.valid),
                       frac(c.textured_agree, c.textured_depth_ok), c.valid)
 
 
 def trusted(s: TrustStats, config: Config):
     """The failure flag's rule (measured as a classifier by experiments/failure_flag.py)."""
-    return (s.finite & (s.conditioning > 1e-9) & (s.inlier_ratio >= config.min_inlier_ratio)
+    return (s.finite & (s.conditioning > MIN_CONDITIONING) & (s.inlier_ratio >= config.min_inlier_ratio)
             & (s.depth_agreement >= config.min_depth_agreement)
             & (s.photometric_agreement >= config.min_photometric_agreement)
             & (s.valid_pixels >= MIN_VALID_PIXELS))
@@ -142,7 +152,7 @@ def explain_validity(ref: Frame, cur: Frame, camera: Camera, estimate: "MotionEs
                      config: Optional[Config] = None):
     """Why ``estimate`` (of ``estimate_motion(ref, cur, camera, config)``) is or is not ``valid``:
     returns ``(TrustStats, valid)``, recomputed exactly as the estimator does at the end. The rule
-    (:func:`trusted`): finite, conditioning > 1e-9, ``inlier_ratio``, ``depth_agreement`` and
+    (:func:`trusted`): finite, conditioning > :data:`MIN_CONDITIONING`, ``inlier_ratio``, ``depth_agreement`` and
     ``photometric_agreement`` at least the config's ``min_*`` values, and ``valid_pixels`` at
     least :data:`MIN_VALID_PIXELS`."""
     config = checked_config(config, camera)

@@ -12,8 +12,8 @@ from jaxvo import geometry
 from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame, has_depth
-from jaxvo.estimator import MotionEstimate, PreparedFrame, checked_config, checked_key, estimate_motion, num_levels, \
-    prepare_frame
+from jaxvo.estimator import MIN_CONDITIONING, MotionEstimate, PreparedFrame, checked_config, checked_key, conditioning, \
+    estimate_motion, num_levels, prepare_frame
 from jaxvo.tracking import depth_time, segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
@@ -640,9 +640,12 @@ class Odometry:
         r = self.static_map.read(est, weights)
         ok = r.ok
         # TrackConfig.rescue: RANSAC's flag counts every pixel, and where people cover most of
-        # the reference and stand in front of the rest, a right estimate fails it
+        # the reference and stand in front of the rest, a right estimate fails it. Its fractions
+        # are of the pixels with both residuals, which a current frame with almost no depth makes
+        # a handful: the rescue overrides the flag's agreement tests, never its conditioning
         if not ok and policy.rescue > 0 and self.config.method == "ransac":
-            ok = r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
+            ok = (r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
+                  and conditioning(np.asarray(est.information, np.float64), np) > MIN_CONDITIONING)
         T = _rigid(r.T)
         valid = bool(ok) and bool(np.all(np.isfinite(T)))
         trusted = valid
