@@ -123,7 +123,8 @@ def make_frame(image, depth, depth_scale: Optional[float] = None, *, color_order
 
     Raises:
       ValueError: wrong shapes or dtypes, mismatched sizes, an unknown color_order, integer
-        depth without depth_scale, depth whose range says the scale is wrong (e.g. millimetres passed as metres), or a float image on [0, 1] (not 0-255).
+        depth without depth_scale, depth whose range says the scale is wrong (e.g. millimetres
+        passed as metres), or a float image on [0, 1] (not 0-255).
     """
     where = f"{source}: " if source else ""
     check_values({"color_order": color_order}, _ORDER_RULE, f"{where}make_frame")

@@ -16,5 +16,5 @@ from jaxvo.estimator.solvers import least_squares
 from jaxvo.estimator.trust import MIN_CONDITIONING, TrustStats, conditioning, explain_validity, pixel_counts
 
 __all__ = ["EstimateArgs", "MIN_CONDITIONING", "MotionEstimate", "PreparedFrame", "TrustStats", "as_float32",
-           "checked_config", "checked_key", "conditioning", "estimate_args", "estimate_arrays", "estimate_arrays_jit", "estimate_motion", "explain_validity",
-           "least_squares", "num_levels", "pixel_counts", "prepare_frame", "trace_count"]
+           "checked_config", "checked_key", "conditioning", "estimate_args", "estimate_arrays", "estimate_arrays_jit",
+           "estimate_motion", "explain_validity", "least_squares", "num_levels", "pixel_counts", "prepare_frame", "trace_count"]
