@@ -13,8 +13,9 @@ from jaxvo.estimator.levels import estimate_arrays, estimate_arrays_jit, trace_c
 from jaxvo.estimator.motion import PreparedFrame, estimate_motion, prepare_frame
 from jaxvo.estimator.result import MotionEstimate
 from jaxvo.estimator.solvers import least_squares
-from jaxvo.estimator.trust import MIN_CONDITIONING, TrustStats, conditioning, explain_validity, pixel_counts
+from jaxvo.estimator.trust import MIN_CONDITIONING, TrustStats, conditioning, explain_validity, pixel_counts, \
+    position_sd
 
 __all__ = ["EstimateArgs", "MIN_CONDITIONING", "MotionEstimate", "PreparedFrame", "TrustStats", "as_float32",
            "checked_config", "checked_key", "conditioning", "estimate_args", "estimate_arrays", "estimate_arrays_jit",
-           "estimate_motion", "explain_validity", "least_squares", "num_levels", "pixel_counts", "prepare_frame", "trace_count"]
+           "estimate_motion", "explain_validity", "least_squares", "num_levels", "pixel_counts", "position_sd", "prepare_frame", "trace_count"]

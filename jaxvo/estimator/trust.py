@@ -6,6 +6,7 @@ from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxvo.camera import Camera
 from jaxvo.config import Config
@@ -18,7 +19,7 @@ from jaxvo.estimator.result import MotionEstimate
 from jaxvo.frame import Frame, validate_pair
 
 __all__ = ["TrustStats", "conditioning", "explain_validity", "final_counts", "final_residuals", "pixel_counts",
-           "trust_stats", "trusted", "MIN_CONDITIONING", "MIN_VALID_PIXELS"]
+           "position_sd", "trust_stats", "trusted", "MIN_CONDITIONING", "MIN_VALID_PIXELS"]
 
 #: Smallest ratio of the information matrix's extreme eigenvalues (:func:`conditioning`) that an
 #: estimate is trusted at: below it some direction of the twist is not determined by the pixels.
@@ -116,6 +117,19 @@ def conditioning(info, xp=jnp):
     with the array module ``xp``: jax.numpy inside the estimator, numpy on the host."""
     eig = xp.linalg.eigvalsh(0.5 * (info + info.T))
     return eig[0] / xp.maximum(eig[-1], 1e-30)
+
+
+def position_sd(info) -> float:
+    """The largest standard deviation (metres) of an estimate's translation that its (6, 6)
+    information matrix ``info`` (twist order w, v) leaves, on the host: the square root of the
+    largest diagonal entry of the translation block of its (pseudo-)inverse; inf or NaN where
+    ``info`` is not finite. Large where the pixels that constrain the pose lie in a small part of
+    the image."""
+    info = np.asarray(info, np.float64)
+    if not np.all(np.isfinite(info)):
+        return float("nan")
+    C = np.linalg.pinv(0.5 * (info + info.T))
+    return float(np.sqrt(np.max(np.abs(np.diag(C)[3:]))))
 
 
 def trust_stats(c: _Counts, info, T) -> TrustStats:

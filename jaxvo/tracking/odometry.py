@@ -13,7 +13,7 @@ from jaxvo.camera import Camera
 from jaxvo.config import Config, TrackConfig
 from jaxvo.frame import Frame, check_frame, has_depth
 from jaxvo.estimator import MIN_CONDITIONING, MotionEstimate, PreparedFrame, checked_config, checked_key, conditioning, \
-    estimate_motion, num_levels, prepare_frame
+    estimate_motion, num_levels, position_sd, prepare_frame
 from jaxvo.tracking import depth_time, segmentation, window
 from jaxvo.tracking.static_map import NoStaticMap, StaticMap
 
@@ -80,6 +80,12 @@ AGREEMENT = 0.25
 #: static mask trusts at least this much more of its pixels than the reference's
 #: (Odometry._second_opinion): a keyframe that sees no more of the static scene adds no evidence.
 SECOND_MARGIN = 0.1
+#: An estimate whose information matrix leaves its translation less certain than this (the largest
+#: standard deviation, metres: :func:`jaxvo.estimator.position_sd`) is not trusted, whatever its
+#: flag: the pixels that constrain it lie in a small part of the image (a current frame with
+#: depth only in a corner), and RANSAC's hypotheses then agree with them centimetres off.
+#: docs/decisions/failure-flag.md.
+MAX_POSITION_SD = 0.01
 
 
 def fuse_poses(P1: np.ndarray, I1: np.ndarray, P2: np.ndarray, I2: np.ndarray) -> np.ndarray:
@@ -647,7 +653,7 @@ class Odometry:
             ok = (r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
                   and conditioning(np.asarray(est.information, np.float64), np) > MIN_CONDITIONING)
         T = _rigid(r.T)
-        valid = bool(ok) and bool(np.all(np.isfinite(T)))
+        valid = bool(ok) and bool(np.all(np.isfinite(T))) and position_sd(est.information) <= MAX_POSITION_SD
         trusted = valid
         if valid:
             valid = _within(T @ T_ref_prev, policy.max_step + extra[0], policy.max_step_deg + extra[1])  # T_cur_guess
