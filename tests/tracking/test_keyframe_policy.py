@@ -40,6 +40,11 @@ def _frames(n=N):
     return out
 
 
+#: The fake estimates' information matrix: 1 mm and 1 mrad standard deviations, a well-determined
+#: estimate (the tracking trusts none that leaves over MAX_POSITION_SD).
+INFO = 1e6 * np.eye(6)
+
+
 def _index(frame) -> int:
     """The frame index written into pixel (0, 0) of a frame, or of a prepared frame's frame (what
     the odometry passes to the estimator)."""
@@ -64,7 +69,7 @@ def _fake_estimator(monkeypatch, truth, passes=lambda r, c: c not in FAIL):
         noise = np.concatenate([rng.normal(0, np.radians(0.1), 3), rng.normal(0, 0.003, 3)])
         T = geometry.inverse(truth[c]) @ truth[r] @ geometry.exp(noise)
         z = np.zeros((CAM.height, CAM.width), bool)
-        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, passes(r, c), np.eye(6), 1.0)
+        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, passes(r, c), INFO, 1.0)
 
     monkeypatch.setattr(O, "estimate_motion", fake)
     return truth, calls
@@ -184,7 +189,7 @@ def test_a_failed_estimate_is_retried_from_the_constant_velocity_guess(monkeypat
         ok = geometry.rotation_angle((np.asarray(init, np.float64) @ geometry.inverse(T))[:3, :3]) < np.radians(2.5)
         tried.append((r, c, ok))
         z = np.zeros((CAM.height, CAM.width), bool)
-        return MotionEstimate(T.astype(np.float32), np.zeros(6), z, z, 0.9, 0, 0, ok, np.eye(6), 1.0)
+        return MotionEstimate(T.astype(np.float32), np.zeros(6), z, z, 0.9, 0, 0, ok, INFO, 1.0)
 
     monkeypatch.setattr(O, "estimate_motion", fake)
 
@@ -240,7 +245,7 @@ def test_a_failed_ransac_estimate_is_rescued_by_the_trusted_pixels_it_still_sees
             r, c = _index(ref), _index(cur)
             T = geometry.inverse(truth[c]) @ truth[r]
             ones = np.ones((h, w), bool)
-            return MotionEstimate(T.astype(np.float32), np.zeros(6), ~hidden, ones, 0.25, 0, 0, False, np.eye(6), 1.0,
+            return MotionEstimate(T.astype(np.float32), np.zeros(6), ~hidden, ones, 0.25, 0, 0, False, INFO, 1.0,
                                   occluded)
         return fake
 
@@ -278,7 +283,7 @@ def test_estimates_that_agree_outweigh_a_wrong_guess(monkeypatch):
         T_world_cur = truth[c] @ bias if c == 100 else truth[c]
         T = geometry.inverse(T_world_cur) @ truth[r] @ geometry.exp(noise)
         z = np.zeros((CAM.height, CAM.width), bool)
-        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, True, np.eye(6), 1.0)
+        return MotionEstimate(T.astype(np.float32), noise, z, z, 0.9, 0, 0, True, INFO, 1.0)
 
     monkeypatch.setattr(O, "estimate_motion", fake)
     policy = TrackConfig(calm_fraction=0.0)          # keyframes throughout: the reference is not frame 100
