@@ -295,7 +295,8 @@ def _print_run_summary(run):
     if res.interrupted:
         lines.append("interrupted (Ctrl-C): summary of the frames done so far (the trajectory keeps its "
                      ".partial name)")
-    blank = f" ({res.without_depth} frames without depth, held)" if res.without_depth else ""
+    n = res.without_depth
+    blank = f" ({n} frame{'' if n == 1 else 's'} without depth, held)" if n else ""
     lines.append(f"frames        {len(res.stamps)} ({res.pairs} pairs), failures {res.failures}{blank}")
     lines.append(f"inlier ratio  {fmt(float(np.mean(res.inlier_ratio)) if res.pairs else float('nan'), 3)} (mean)")
     lines.append(f"compile       {fmt(res.compile_s, 1)} s (first pair, compilation included)")

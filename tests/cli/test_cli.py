@@ -147,7 +147,7 @@ def test_a_blank_depth_image_is_held_and_the_run_goes_on(tmp_path, synth_seq):
     out = tmp_path / "t.txt"
     r = _invoke(["run", seq, "--out", out, "--no-progress"])
     assert r.exit_code == 0, r.output
-    assert "(1 frames without depth, held)" in r.output, r.output
+    assert "failures 1 (1 frame without depth, held)" in r.output, r.output
     stamps, _ = read_tum_trajectory(out)
     assert len(stamps) == 8
     assert stamps[3] in read_held(out)
