@@ -18,4 +18,5 @@ from jaxvo.estimator.trust import MIN_CONDITIONING, TrustStats, conditioning, ex
 
 __all__ = ["EstimateArgs", "MIN_CONDITIONING", "MotionEstimate", "PreparedFrame", "TrustStats", "as_float32",
            "checked_config", "checked_key", "conditioning", "estimate_args", "estimate_arrays", "estimate_arrays_jit",
-           "estimate_motion", "explain_validity", "least_squares", "num_levels", "pixel_counts", "position_sd", "prepare_frame", "trace_count"]
+           "estimate_motion", "explain_validity", "least_squares", "num_levels", "pixel_counts", "position_sd",
+           "prepare_frame", "trace_count"]

@@ -651,9 +651,9 @@ class Odometry:
         # a handful: the rescue overrides the flag's agreement tests, never its conditioning
         if not ok and policy.rescue > 0 and self.config.method == "ransac":
             ok = (r.seen >= policy.rescue_support and r.ratio_seen >= policy.rescue
-                  and conditioning(np.asarray(est.information, np.float64), np) > MIN_CONDITIONING)
+                  and conditioning(np.asarray(r.information, np.float64), np) > MIN_CONDITIONING)
         T = _rigid(r.T)
-        valid = bool(ok) and bool(np.all(np.isfinite(T))) and position_sd(est.information) <= MAX_POSITION_SD
+        valid = bool(ok) and bool(np.all(np.isfinite(T))) and position_sd(r.information) <= MAX_POSITION_SD
         trusted = valid
         if valid:
             valid = _within(T @ T_ref_prev, policy.max_step + extra[0], policy.max_step_deg + extra[1])  # T_cur_guess

@@ -202,6 +202,7 @@ class Reading(NamedTuple):
     dynamic: the fraction of the valid reference pixels the map does not trust.
     seen: the fraction of them it trusts and the current frame does not hide (occluded).
     ratio_seen: the inlier ratio over those.
+    information: (6, 6) float32, its information matrix (:attr:`MotionEstimate.information`).
     """
     T: np.ndarray
     ratio: float
@@ -210,6 +211,7 @@ class Reading(NamedTuple):
     dynamic: float
     seen: float
     ratio_seen: float
+    information: np.ndarray
 
 
 class StaticMap:
@@ -281,10 +283,10 @@ class StaticMap:
             # on the one device its exported programs commit their outputs to (jaxvo.runtime.aot):
             # a jit refuses arguments committed to different devices
             weights = jax.device_put(weights, masks.sharding)
-        T, ratio, ok, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
-            (est.T_cur_ref, est.inlier_ratio, est.valid,
+        T, ratio, ok, info, (ratio_static, dynamic, seen, ratio_seen) = jax.device_get(   # one transfer
+            (est.T_cur_ref, est.inlier_ratio, est.valid, est.information,
              _trust_ratios(est.inlier_mask, est.valid_mask, occluded, weights)))
-        return Reading(T, ratio, ok, ratio_static, dynamic, seen, ratio_seen)
+        return Reading(T, ratio, ok, ratio_static, dynamic, seen, ratio_seen, info)
 
     def static_mask(self, weights, shape) -> np.ndarray:
         """(H, W) bool on the host: the reference pixels ``weights`` trusts as static (>= 0.5)."""
@@ -368,8 +370,8 @@ class NoStaticMap:
         """The :class:`Reading` of ``est`` without a map: the static ratio is the inlier ratio,
         every pixel counts as dynamic (1.0, so the calm mode, ``dynamic < TrackConfig.calm_fraction``
         with calm_fraction <= 1, never starts) and none as seen (0: ``TrackConfig.rescue`` never applies)."""
-        T, ratio, ok = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid))
-        return Reading(T, ratio, ok, ratio, 1.0, 0.0, 0.0)
+        T, ratio, ok, info = jax.device_get((est.T_cur_ref, est.inlier_ratio, est.valid, est.information))
+        return Reading(T, ratio, ok, ratio, 1.0, 0.0, 0.0, info)
 
     def static_mask(self, weights, shape) -> None:
         return None
