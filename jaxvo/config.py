@@ -338,6 +338,13 @@ class TrackConfig(NamedTuple):
     #: frame's pose as it was returned (``TrackStep.T_world_cur``; a line per frame as it is
     #: tracked; :meth:`frame_to_frame` and :meth:`keyframes`). docs/decisions/window.md.
     poses: Annotated[str, choice("tracked", "refined")] = "refined"
+    #: With the segmentation (``segment``): how sharply its evidence sets the static weight every
+    #: estimate gives a reference pixel, sigmoid(-trust_gain * L) of the log-odds L that the pixel
+    #: is dynamic (> 0; 1: the map's probability that it is static). Every gain trusts the same
+    #: pixels (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels
+    #: the map is unsure of (|L| small, people it has half seen move) less weight in the scoring
+    #: and the refinements. docs/decisions/trust-gain.md.
+    trust_gain: Annotated[float, real(0, lo_open=True)] = 3.0
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

@@ -431,9 +431,12 @@ def flagged(L, flags):
     return jnp.where(flags, jnp.maximum(L, 2.0), L)
 
 
-def static_weight(L):
-    """Trust in each pixel as static scene: sigmoid(-L), in (0, 1)."""
-    return jax.nn.sigmoid(-L)
+def static_weight(L, gain=1.0):
+    """Trust in each pixel as static scene: sigmoid(-gain * L), in (0, 1). ``gain`` 1 gives the
+    map's probability that the pixel is static; every gain > 0 trusts the same pixels (weight >=
+    0.5 where L <= 0) and a larger one sharpens the weights towards 0 and 1
+    (``TrackConfig.trust_gain``, docs/decisions/trust-gain.md)."""
+    return jax.nn.sigmoid(-gain * L)
 
 
 def upsample(x, shape, factor: int = 1 << MAP_LEVEL):

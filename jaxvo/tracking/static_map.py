@@ -41,8 +41,8 @@ def _map_inputs(intensity, depth, max_depth):
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
-def _trust(L, flags, shape):
-    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags)), shape)
+def _trust(L, flags, gain, shape):
+    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags), gain), shape)
 
 
 @jax.jit
@@ -148,7 +148,7 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         Lz, mz = abstract(L), abstract(md)
         T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
         n = _FEW_VIEWS
-        weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), shape),
+        weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), jnp.float32(1), shape),
                            sharding=placement)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         mask = jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=placement)
@@ -219,6 +219,7 @@ class StaticMap:
 
     camera, cue_camera: the intrinsics at the map level (:data:`segmentation.MAP_LEVEL`) and at the
     motion test's level (:data:`segmentation.CUE_LEVEL`). params: :class:`segmentation.SegmentParams`.
+    gain: how sharply the evidence sets the static weights (:meth:`trust`, ``TrackConfig.trust_gain``).
     L: (h, w) float32 log-odds that each reference pixel is dynamic (the evidence), at the map level;
     flags: (h, w) bool, its regions flagged dynamic while it is the reference.
     depths: frame index -> map-level depth, for the votes; cues: frame index -> motion-test
@@ -237,8 +238,9 @@ class StaticMap:
     #: the later motion test of a reference tested against no earlier view (:func:`_later_motion_test`)
     later_motion_test_program = staticmethod(_later_motion_test)
 
-    def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams):
+    def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams, gain: float = 1.0):
         self.params = params
+        self.gain = np.float32(gain)
         self.max_depth = max_depth
         self.camera = camera.at_level(segmentation.MAP_LEVEL)
         self.cue_camera = camera.at_level(segmentation.CUE_LEVEL)
@@ -270,8 +272,9 @@ class StaticMap:
                                                    self.camera, self.cue_camera, self.params)
 
     def trust(self, shape):
-        """(H, W) float32 static weight of the reference's pixels (``shape``: the frames' (H, W))."""
-        return _trust(self.L, self.flags, shape)
+        """(H, W) float32 static weight of the reference's pixels (``shape``: the frames' (H, W)):
+        :func:`segmentation.static_weight` of the evidence with this map's ``gain``."""
+        return _trust(self.L, self.flags, self.gain, shape)
 
     def read(self, est: MotionEstimate, weights) -> Reading:
         """The :class:`Reading` of ``est`` estimated with the reference's static ``weights`` (:meth:`trust`)."""

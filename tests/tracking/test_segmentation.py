@@ -324,6 +324,41 @@ def test_upsample_and_weight():
     assert w[0, 3] < 1e-4 and w[3, 0] > 1 - 1e-4 and w[4, 0] == w[3, 0]
 
 
+@pytest.mark.parametrize("gain", [1.0, 3.0, 7.5])
+def test_static_weight_gain_sharpens_without_changing_the_trusted_pixels(gain):
+    L = np.linspace(-6.0, 6.0, 241, dtype=np.float32).reshape(1, -1)
+    w = np.asarray(S.static_weight(jnp.asarray(L), jnp.float32(gain)))
+    # the logistic function written out, in float64
+    np.testing.assert_allclose(w, 1.0 / (1.0 + np.exp(gain * L.astype(np.float64))), rtol=2e-6, atol=1e-7)
+    np.testing.assert_array_equal(w >= 0.5, L <= 0)
+    if gain == 1.0:   # the map's own probability, bit for bit the gain-free weight
+        np.testing.assert_array_equal(w, np.asarray(S.static_weight(jnp.asarray(L))))
+    else:   # a sharper step: farther from 0.5 wherever the map has a say
+        p = np.asarray(S.static_weight(jnp.asarray(L)))
+        assert (np.abs(w - 0.5) >= np.abs(p - 0.5) - 1e-7).all()
+        assert (np.abs(w - 0.5) > np.abs(p - 0.5))[np.abs(L) > 0.1].all()
+
+
+def test_trust_gain_weights_the_estimates_and_one_is_the_probability(frames320):
+    """TrackConfig.trust_gain reaches the weights every estimate is given, and 1 gives the
+    map's probability: the StaticMap's trust equals static_weight of its evidence at the gain."""
+    s, cam, rs = frames320
+    frame = rs[0].frame()
+    shape = tuple(frame.depth.shape)
+    for gain in (1.0, 3.0):
+        odo = Odometry(cam, Config(), policy=TrackConfig(trust_gain=gain))
+        odo.add(frame)
+        smap = odo.static_map
+        L = jnp.asarray(np.linspace(-3, 3, smap.L.size, dtype=np.float32).reshape(smap.L.shape))
+        smap.L = L
+        want = 1.0 / (1.0 + np.exp(gain * np.asarray(S.flagged(L, smap.flags), np.float64)))
+        want = np.repeat(np.repeat(want, 2, 0), 2, 1)[: shape[0], : shape[1]]
+        got = np.asarray(smap.trust(shape))
+        np.testing.assert_allclose(got, want, rtol=2e-6, atol=1e-7)
+        if gain == 1.0:
+            np.testing.assert_array_equal(got, np.asarray(S.upsample(S.static_weight(S.flagged(L, smap.flags)), shape)))
+
+
 # ----------------------------------------------------------------------------- Odometry
 
 
