@@ -344,7 +344,7 @@ class TrackConfig(NamedTuple):
     #: pixels (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels
     #: the map is unsure of (|L| small, people it has half seen move) less weight in the scoring
     #: and the refinements. docs/decisions/trust-gain.md.
-    trust_gain: Annotated[float, real(0, lo_open=True)] = 3.0
+    trust_gain: Annotated[float, real(0, lo_open=True)] = 2.0
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
