@@ -342,9 +342,9 @@ class TrackConfig(NamedTuple):
     #: estimate gives a reference pixel, sigmoid(-trust_gain * L) of the log-odds L that the pixel
     #: is dynamic (> 0; 1: the map's probability that it is static). Every gain trusts the same
     #: pixels (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels
-    #: the map is unsure of (|L| small, people it has half seen move) less weight in the scoring
-    #: and the refinements. docs/decisions/trust-gain.md.
-    trust_gain: Annotated[float, real(0, lo_open=True)] = 2.0
+    #: the map is unsure of less weight in the scoring and the refinements. A lever, at 1: 2-3 track
+    #: the Bonn crowd better and lose some dynamic augmentations. docs/decisions/trust-gain.md.
+    trust_gain: Annotated[float, real(0, lo_open=True)] = 1.0
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
