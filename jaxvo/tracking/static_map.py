@@ -148,8 +148,8 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         Lz, mz = abstract(L), abstract(md)
         T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
         n = _FEW_VIEWS
-        weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), jnp.float32(1), shape),
-                           sharding=placement)
+        weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), jnp.float32(1),
+                                          shape), sharding=placement)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         mask = jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=placement)
         cues = (abstract(cue[0]), abstract(cue[1]))
