@@ -240,7 +240,8 @@ class StaticMap:
 
     def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams, gain: float = 1.0):
         self.params = params
-        self.gain = np.float32(gain)
+        self.gain = float(gain)
+        self._gain = None   # on the device beside L (add)
         self.max_depth = max_depth
         self.camera = camera.at_level(segmentation.MAP_LEVEL)
         self.cue_camera = camera.at_level(segmentation.CUE_LEVEL)
@@ -266,15 +267,16 @@ class StaticMap:
         if j == 0:
             # placed where the map programs' outputs that replace them will lie (committed to the
             # device while those programs are exported): _trust compiles once
-            self.L, self.flags = aot.placed((jnp.full(self.depths[0].shape, self.params.prior, jnp.float32),
-                                             jnp.zeros(self.depths[0].shape, bool)))
+            # the gain too, once: a host scalar would be copied to the device at every trust()
+            self.L, self.flags, self._gain = aot.placed((jnp.full(self.depths[0].shape, self.params.prior, jnp.float32),
+                                                         jnp.zeros(self.depths[0].shape, bool), jnp.float32(self.gain)))
             self.compiling = _compile_map_programs(self.L, self.depths[0], self.cues[0], tuple(frame.depth.shape),
                                                    self.camera, self.cue_camera, self.params)
 
     def trust(self, shape):
         """(H, W) float32 static weight of the reference's pixels (``shape``: the frames' (H, W)):
         :func:`segmentation.static_weight` of the evidence with this map's ``gain``."""
-        return _trust(self.L, self.flags, self.gain, shape)
+        return _trust(self.L, self.flags, self._gain, shape)
 
     def read(self, est: MotionEstimate, weights) -> Reading:
         """The :class:`Reading` of ``est`` estimated with the reference's static ``weights`` (:meth:`trust`)."""
