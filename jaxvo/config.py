@@ -342,9 +342,15 @@ class TrackConfig(NamedTuple):
     #: estimate gives a reference pixel, sigmoid(-trust_gain * L) of the log-odds L that the pixel
     #: is dynamic (> 0; 1: the map's probability that it is static). Every gain trusts the same
     #: pixels (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels
-    #: the map is unsure of less weight in the scoring and the refinements. A lever, at 1: 2-3 track
-    #: the Bonn crowd better and lose some dynamic augmentations. docs/decisions/trust-gain.md.
+    #: the map is unsure of less weight in the scoring and the refinements. It applies where the
+    #: map trusts under ``trust_share`` of its pixels, and 1 elsewhere. A lever, at 1.
+    #: docs/decisions/trust-gain.md.
     trust_gain: Annotated[float, real(0, lo_open=True)] = 1.0
+    #: The share of the reference's map pixels trusted as static (log-odds <= 0) under which
+    #: ``trust_gain`` sharpens the weights: where people cover most of the view. Where the static
+    #: scene is the majority the weights stay the map's probability, so a sequence that starts
+    #: with people in view, before the map has evidence, is not led onto them.
+    trust_share: Annotated[float, real(0, 1)] = 0.5
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

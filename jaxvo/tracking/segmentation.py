@@ -431,11 +431,20 @@ def flagged(L, flags):
     return jnp.where(flags, jnp.maximum(L, 2.0), L)
 
 
-def static_weight(L, gain=1.0):
-    """Trust in each pixel as static scene: sigmoid(-gain * L), in (0, 1). ``gain`` 1 gives the
-    map's probability that the pixel is static; every gain > 0 trusts the same pixels (weight >=
-    0.5 where L <= 0) and a larger one sharpens the weights towards 0 and 1
-    (``TrackConfig.trust_gain``, docs/decisions/trust-gain.md)."""
+def static_weight(L, gain=1.0, share=None):
+    """Trust in each pixel of the map L (h, w) as static scene: sigmoid(-g * L), in (0, 1). g = 1
+    gives the map's probability that the pixel is static; every g > 0 trusts the same pixels
+    (weight >= 0.5 where L <= 0) and a larger one sharpens the weights towards 0 and 1.
+
+    g is ``gain`` (``TrackConfig.trust_gain``) where the map trusts under ``share`` of its pixels
+    (the fraction with L <= 0; ``TrackConfig.trust_share``), else 1; ``share`` None: ``gain``
+    everywhere. Where the static scene is the minority, the pixels the map is unsure of (people
+    it has half seen move) would outweigh it at their probability; where it is the majority, the
+    probability is the better weight, and a sequence that starts with people in view, before the
+    map has evidence, is not led onto them (docs/decisions/trust-gain.md)."""
+    if share is not None:
+        trusted = jnp.mean((L <= 0).astype(jnp.float32))
+        gain = jnp.where(trusted < share, gain, 1.0)
     return jax.nn.sigmoid(-gain * L)
 
 

@@ -41,8 +41,8 @@ def _map_inputs(intensity, depth, max_depth):
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
-def _trust(L, flags, gain, shape):
-    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags), gain), shape)
+def _trust(L, flags, gain, share, shape):
+    return segmentation.upsample(segmentation.static_weight(segmentation.flagged(L, flags), gain, share), shape)
 
 
 @jax.jit
@@ -149,7 +149,7 @@ def _compile_map_programs(L, md, cue, shape, camera, cue_camera, params) -> thre
         T = jax.ShapeDtypeStruct((4, 4), jnp.float32)
         n = _FEW_VIEWS
         weights = abstract(jax.eval_shape(_trust, Lz, jax.ShapeDtypeStruct(md.shape, jnp.bool_), jnp.float32(1),
-                                          shape), sharding=placement)
+                                          jnp.float32(1), shape), sharding=placement)
         views = (abstract(md, (n,)), jax.ShapeDtypeStruct((n, 4, 4), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_))
         mask = jax.ShapeDtypeStruct(shape, jnp.bool_, sharding=placement)
         cues = (abstract(cue[0]), abstract(cue[1]))
@@ -219,7 +219,8 @@ class StaticMap:
 
     camera, cue_camera: the intrinsics at the map level (:data:`segmentation.MAP_LEVEL`) and at the
     motion test's level (:data:`segmentation.CUE_LEVEL`). params: :class:`segmentation.SegmentParams`.
-    gain: how sharply the evidence sets the static weights (:meth:`trust`, ``TrackConfig.trust_gain``).
+    gain, share: how sharply the evidence sets the static weights, and below which share of trusted
+    pixels (:meth:`trust`, ``TrackConfig.trust_gain`` and ``trust_share``).
     L: (h, w) float32 log-odds that each reference pixel is dynamic (the evidence), at the map level;
     flags: (h, w) bool, its regions flagged dynamic while it is the reference.
     depths: frame index -> map-level depth, for the votes; cues: frame index -> motion-test
@@ -238,10 +239,11 @@ class StaticMap:
     #: the later motion test of a reference tested against no earlier view (:func:`_later_motion_test`)
     later_motion_test_program = staticmethod(_later_motion_test)
 
-    def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams, gain: float = 1.0):
+    def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams, gain: float = 1.0,
+                 share: float = 1.0):
         self.params = params
-        self.gain = float(gain)
-        self._gain = None   # on the device beside L (add)
+        self.gain, self.share = float(gain), float(share)
+        self._gain = self._share = None   # on the device beside L (add)
         self.max_depth = max_depth
         self.camera = camera.at_level(segmentation.MAP_LEVEL)
         self.cue_camera = camera.at_level(segmentation.CUE_LEVEL)
@@ -267,16 +269,17 @@ class StaticMap:
         if j == 0:
             # placed where the map programs' outputs that replace them will lie (committed to the
             # device while those programs are exported): _trust compiles once
-            # the gain too, once: a host scalar would be copied to the device at every trust()
-            self.L, self.flags, self._gain = aot.placed((jnp.full(self.depths[0].shape, self.params.prior, jnp.float32),
-                                                         jnp.zeros(self.depths[0].shape, bool), jnp.float32(self.gain)))
+            # the gain and share too, once: a host scalar would be copied to the device at every trust()
+            self.L, self.flags, self._gain, self._share = aot.placed(
+                (jnp.full(self.depths[0].shape, self.params.prior, jnp.float32), jnp.zeros(self.depths[0].shape, bool),
+                 jnp.float32(self.gain), jnp.float32(self.share)))
             self.compiling = _compile_map_programs(self.L, self.depths[0], self.cues[0], tuple(frame.depth.shape),
                                                    self.camera, self.cue_camera, self.params)
 
     def trust(self, shape):
         """(H, W) float32 static weight of the reference's pixels (``shape``: the frames' (H, W)):
-        :func:`segmentation.static_weight` of the evidence with this map's ``gain``."""
-        return _trust(self.L, self.flags, self._gain, shape)
+        :func:`segmentation.static_weight` of the evidence with this map's ``gain`` and ``share``."""
+        return _trust(self.L, self.flags, self._gain, self._share, shape)
 
     def read(self, est: MotionEstimate, weights) -> Reading:
         """The :class:`Reading` of ``est`` estimated with the reference's static ``weights`` (:meth:`trust`)."""

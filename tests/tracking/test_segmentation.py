@@ -339,23 +339,42 @@ def test_static_weight_gain_sharpens_without_changing_the_trusted_pixels(gain):
         assert (np.abs(w - 0.5) > np.abs(p - 0.5))[np.abs(L) > 0.1].all()
 
 
+def test_static_weight_share_sharpens_only_maps_that_trust_a_minority():
+    """With ``share`` the gain applies where the map trusts (L <= 0) under that fraction of its
+    pixels, and a map trusting more keeps the probability bit for bit."""
+    def logistic(L, g):
+        return 1.0 / (1.0 + np.exp(g * L.astype(np.float64)))
+    for lo, hi, sharpened in ((-1.0, 3.0, True), (-3.0, 1.0, False)):   # a quarter, three quarters trusted
+        L = np.linspace(lo, hi, 400, dtype=np.float32).reshape(20, 20)
+        assert ((L <= 0).mean() < 0.5) == sharpened
+        w = np.asarray(S.static_weight(jnp.asarray(L), jnp.float32(3.0), jnp.float32(0.5)))
+        np.testing.assert_allclose(w, logistic(L, 3.0 if sharpened else 1.0), rtol=2e-6, atol=1e-7)
+        if not sharpened:
+            np.testing.assert_array_equal(w, np.asarray(S.static_weight(jnp.asarray(L))))
+        # a share above every map's trusted fraction: the gain everywhere, as without a share
+        np.testing.assert_array_equal(np.asarray(S.static_weight(jnp.asarray(L), jnp.float32(3.0), jnp.float32(1.0))),
+                                      np.asarray(S.static_weight(jnp.asarray(L), jnp.float32(3.0))))
+
+
 def test_trust_gain_weights_the_estimates_and_one_is_the_probability(frames320):
-    """TrackConfig.trust_gain reaches the weights every estimate is given, and 1 gives the
-    map's probability: the StaticMap's trust equals static_weight of its evidence at the gain."""
+    """TrackConfig.trust_gain reaches the weights every estimate is given where the map trusts
+    under ``trust_share`` of its pixels, and 1 gives the map's probability: the StaticMap's trust
+    equals static_weight of its evidence at the gain that applies."""
     s, cam, rs = frames320
     frame = rs[0].frame()
     shape = tuple(frame.depth.shape)
-    for gain in (1.0, 3.0):
-        odo = Odometry(cam, Config(), policy=TrackConfig(trust_gain=gain))
+    for gain, share, (lo, hi), applied in ((1.0, 1.0, (-3, 3), 1.0), (3.0, 1.0, (-3, 3), 3.0),
+                                           (3.0, 0.5, (-1, 3), 3.0), (3.0, 0.5, (-3, 1), 1.0)):
+        odo = Odometry(cam, Config(), policy=TrackConfig(trust_gain=gain, trust_share=share))
         odo.add(frame)
         smap = odo.static_map
-        L = jnp.asarray(np.linspace(-3, 3, smap.L.size, dtype=np.float32).reshape(smap.L.shape))
+        L = jnp.asarray(np.linspace(lo, hi, smap.L.size, dtype=np.float32).reshape(smap.L.shape))
         smap.L = L
-        want = 1.0 / (1.0 + np.exp(gain * np.asarray(S.flagged(L, smap.flags), np.float64)))
+        want = 1.0 / (1.0 + np.exp(applied * np.asarray(S.flagged(L, smap.flags), np.float64)))
         want = np.repeat(np.repeat(want, 2, 0), 2, 1)[: shape[0], : shape[1]]
         got = np.asarray(smap.trust(shape))
         np.testing.assert_allclose(got, want, rtol=2e-6, atol=1e-7)
-        if gain == 1.0:
+        if applied == 1.0:
             np.testing.assert_array_equal(got, np.asarray(S.upsample(S.static_weight(S.flagged(L, smap.flags)), shape)))
 
 
