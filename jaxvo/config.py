@@ -340,17 +340,17 @@ class TrackConfig(NamedTuple):
     poses: Annotated[str, choice("tracked", "refined")] = "refined"
     #: With the segmentation (``segment``): how sharply its evidence sets the static weight every
     #: estimate gives a reference pixel, sigmoid(-trust_gain * L) of the log-odds L that the pixel
-    #: is dynamic (> 0; 1: the map's probability that it is static). Every gain trusts the same
-    #: pixels (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels
-    #: the map is unsure of less weight in the scoring and the refinements. It applies where the
-    #: map trusts under ``trust_share`` of its pixels, and 1 elsewhere. A lever, at 1.
+    #: is dynamic (> 0; 1: the map's probability that it is static), where the map trusts under
+    #: ``trust_share`` of its pixels; elsewhere the probability. Every gain trusts the same pixels
+    #: (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels the map
+    #: is unsure of (people it has half seen move) less weight in the scoring and the refinements.
     #: docs/decisions/trust-gain.md.
     trust_gain: Annotated[float, real(0, lo_open=True)] = 1.0
     #: The share of the reference's map pixels trusted as static (log-odds <= 0) under which
     #: ``trust_gain`` sharpens the weights: where people cover most of the view. Where the static
     #: scene is the majority the weights stay the map's probability, so a sequence that starts
     #: with people in view, before the map has evidence, is not led onto them.
-    trust_share: Annotated[float, real(0, 1)] = 0.5
+    trust_share: Annotated[float, real(0, 1)] = 0.4
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":
