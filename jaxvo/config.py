@@ -345,7 +345,7 @@ class TrackConfig(NamedTuple):
     #: (weight >= 0.5: RANSAC's samples, the static masks); a larger one leaves the pixels the map
     #: is unsure of (people it has half seen move) less weight in the scoring and the refinements.
     #: docs/decisions/trust-gain.md.
-    trust_gain: Annotated[float, real(0, lo_open=True)] = 1.0
+    trust_gain: Annotated[float, real(0, lo_open=True)] = 3.0
     #: The share of the reference's map pixels trusted as static (log-odds <= 0) under which
     #: ``trust_gain`` sharpens the weights: where people cover most of the view. Where the static
     #: scene is the majority the weights stay the map's probability, so a sequence that starts
