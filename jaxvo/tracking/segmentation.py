@@ -36,8 +36,9 @@ while it is the reference; what is carried on is the per-pixel evidence, with
 the moving regions at ``motion_vote`` (+2 by default; :func:`reference_map` says why).
 
 The trust passed to :func:`jaxvo.estimator.motion.estimate_motion` (``weights=``) is
-``static_weight(flagged(L, flags))``, sigmoid(-L) with L raised by the flags:
-RANSAC samples pixels of weight >= 0.5, scoring and refinement weigh by it.
+``static_weight(flagged(L, flags), gain, share)``, sigmoid(-L) with L raised by the flags, sharpened
+to sigmoid(-gain * L) where the map trusts under ``share`` of its pixels (``TrackConfig.trust_gain``,
+``trust_share``): RANSAC samples pixels of weight >= 0.5, scoring and refinement weigh by it.
 
 Everything is pure JAX with static shapes; the host-side loop that owns the
 state is :class:`jaxvo.tracking.odometry.Odometry`.
