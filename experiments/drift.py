@@ -3,7 +3,9 @@ reference (``TrackConfig(window=1)``), per seed, on
 
 * jaxvo's synthetic ``crowd`` sequence (``jaxvo.synthetic``: a hand-held camera panning slowly,
   three persons walking on their own paths, at times covering half the image, Kinect-like sensor
-  noise; exact ground truth), ``--frames`` frames at ``--size``;
+  noise; exact ground truth), ``--frames`` frames at ``--size``; with ``--scene crowd-close`` the
+  persons come closer and stand in view for seconds before they walk out (up to three quarters of
+  the image);
 * dynamic augmentations of real static recordings (``--augment``: synthetic walking persons
   composited into them, ``jaxvo.synthetic.augment``), at their own size.
 
@@ -20,6 +22,7 @@ Example::
     python experiments/drift.py --frames 120 --seeds 0 --out /tmp/drift.md
     python experiments/drift.py --augment ../shared/data/tum/rgbd_dataset_freiburg2_desk --frames 0
     python experiments/drift.py --policy '{"second_opinion": 0}'   # a TrackConfig field changed in both
+    python experiments/drift.py --scene crowd-close --out experiments/results/drift/crowd_close.md
 """
 from __future__ import annotations
 
@@ -44,6 +47,9 @@ def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("--frames", type=int, default=900, help="frames of the synthetic crowd sequence (0: none)")
+    ap.add_argument("--scene", choices=("crowd", "crowd-close"), default="crowd",
+                    help="the synthetic sequence: crowd (persons walking at 1.2-3 m) or crowd-close (persons at "
+                         "0.9-2.3 m who stand in view for seconds, then walk out)")
     ap.add_argument("--size", default="320x240", help="synthetic image size WxH (intrinsics scaled from 640x480)")
     ap.add_argument("--seeds", default=",".join(map(str, range(12))), help="comma-separated seeds")
     ap.add_argument("--augment", nargs="*", default=[], help="real static TUM sequences to augment with persons")
@@ -124,14 +130,14 @@ def _track_all(frames, camera, seed, changes=None, poses: str = "refined"):
 
 
 def run_crowd(job):
-    """One seed of the synthetic crowd: rows for both policies."""
-    seed, frames, size, changes, poses = job
+    """One seed of a synthetic crowd (``scene``: crowd or crowd-close): rows for both policies."""
+    seed, frames, size, changes, poses, scene = job
     from jaxvo.camera import DEFAULT, camera_for_size
     from jaxvo.frame import make_frame
     from jaxvo.synthetic import SensorModel, make_sequence
     w, h = map(int, size.split("x"))
     camera = camera_for_size(DEFAULT, w, h)
-    seq = make_sequence("crowd", frames=frames, seed=seed, camera=camera)
+    seq = make_sequence(scene, frames=frames, seed=seed, camera=camera)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD21F7]))
     imgs, covered = [], []
     for k in range(frames):
@@ -140,7 +146,7 @@ def run_crowd(job):
         covered.append(float(r.moving_mask.mean()))
     rows = []
     for name, (P, held, dt) in _track_all(imgs, camera, seed, changes, poses).items():
-        rows.append({"data": f"synthetic crowd {frames} frames {size}", "seed": seed, "policy": name, "held": held,
+        rows.append({"data": f"synthetic {scene} {frames} frames {size}", "seed": seed, "policy": name, "held": held,
                      "ms_per_frame": 1000 * dt, "moving_max": max(covered), "moving_mean": float(np.mean(covered)),
                      **drift_stats(seq.timestamps, seq.poses, P)})
     return rows
@@ -190,7 +196,8 @@ def summary_md(rows):
 def main(argv=None):
     args = parse_args(argv)
     seeds = common.int_list(args.seeds)
-    jobs = [(run_crowd, (s, args.frames, args.size, args.policy, args.poses)) for s in seeds if args.frames > 0]
+    jobs = [(run_crowd, (s, args.frames, args.size, args.policy, args.poses, args.scene)) for s in seeds
+            if args.frames > 0]
     jobs += [(run_augmented, (str(Path(r)), s, args.persons, args.policy, args.poses)) for r in args.augment
              for s in seeds]
     t0 = time.time()

@@ -11,7 +11,7 @@ import pytest
 
 from jaxvo import geometry
 from jaxvo.camera import DEFAULT
-from jaxvo.synthetic import (Box, FixedPose, Rect, Scene, SensorModel, augment, generate, make_object,
+from jaxvo.synthetic import (Box, FixedPose, Rect, Scene, SensorModel, Walk, augment, generate, make_object,
                              make_person, make_room, make_sequence, render)
 from jaxvo.synthetic.motions import rot_x, rot_y
 from jaxvo.synthetic.scene import ROOM_BOUNDS
@@ -176,6 +176,44 @@ def test_sequences_motion():
     assert max(cov) > 0.4
     with pytest.raises(ValueError):
         make_sequence("seq9")
+
+
+def test_walk_dwell_stands_at_each_end_then_walks_from_rest_to_rest():
+    """Walk(dwell=0.25, period=8 s): at a for t in [0, 2), walking for [2, 4), at b for [4, 6),
+    back for [6, 8): each walk the half cosine from rest to rest, halfway at its middle; dwell 0 is
+    the plain cosine."""
+    a, b = (-1.0, 0.0, 2.0), (1.0, 0.0, 1.0)
+    walk = Walk(a, b, period=8.0, dwell=0.25, sway=0.0)
+    x = {t: walk.pose(t)[:3, 3] for t in (0.0, 1.0, 1.99, 3.0, 4.0, 5.5, 7.0, 8.0, 9.0)}
+    for t in (0.0, 1.0, 1.99, 8.0, 9.0):
+        np.testing.assert_allclose(x[t], a, atol=1e-12)
+    for t in (4.0, 5.5):
+        np.testing.assert_allclose(x[t], b, atol=1e-12)
+    for t in (3.0, 7.0):   # the middle of each walk: (1 - cos(pi / 2)) / 2 = 1 / 2 of the way
+        np.testing.assert_allclose(x[t], 0.5 * (np.asarray(a) + np.asarray(b)), atol=1e-12)
+    # from rest: a 10 ms step just after the stand moves the body under a millimetre, one in the
+    # middle of the walk about 10 ms x pi |b - a| / 4 s
+    step = lambda t: np.linalg.norm(walk.pose(t + 0.01)[:3, 3] - walk.pose(t)[:3, 3])
+    assert step(2.0) < 1e-3 and step(2.99) == pytest.approx(0.01 * math.pi * math.sqrt(5) / 4, rel=1e-3)
+    plain = Walk(a, b, period=8.0, phase=0.3)
+    for t in (0.0, 1.7, 5.2):
+        s = 0.5 * (1 - math.cos(2 * math.pi * t / 8.0 + 0.3))
+        np.testing.assert_allclose(plain.pose(t)[:3, 3], np.asarray(a) + s * (np.asarray(b) - np.asarray(a)),
+                                   atol=1e-12)
+
+
+def test_crowd_close_persons_stand_in_view_and_cover_much_of_it():
+    """crowd-close: each person stands still for a good part of the run, and together they cover
+    more than half of some frames; the camera moves as in crowd (the same hand-held sweep)."""
+    close = make_sequence("crowd-close", frames=900, seed=1, camera=CAM)
+    crowd = make_sequence("crowd", frames=900, seed=1, camera=CAM)
+    np.testing.assert_array_equal(close.poses, crowd.poses)
+    for p in close.persons:
+        pos = np.array([p.pose(t)[:3, 3] for t in close.timestamps])
+        still = np.linalg.norm(np.diff(pos, axis=0), axis=1) * 30 < 0.05    # under 5 cm/s
+        assert 0.25 < still.mean() < 0.7
+    cov = [close.render(k).moving_mask.mean() for k in range(0, 900, 30)]
+    assert max(cov) > 0.5
 
 
 def test_sensor_model():

@@ -21,8 +21,9 @@ NAME picks the camera / person motion (the paper's Table II): seq0 hand-held cam
 scene; seq1 fixed camera, one person walking; seq2 camera panning at 2 deg/s on a pan-tilt
 head, one person; seq3 as seq2 with two persons; handheld-fast hand-held camera with a
 person moving fast and close; crowd (for long runs) hand-held camera panning slowly, three persons
-walking on their own paths, at times covering half the image. Frames at 30 Hz, deterministic
-from --seed.
+walking on their own paths, at times covering half the image; crowd-close as crowd, with persons
+close to the camera who walk into the view, stand there for seconds and walk out (up to three
+quarters of the image). Frames at 30 Hz, deterministic from --seed.
 
 OUT_DIR gets the TUM layout (rgb/, depth/ 16-bit metres x 5000, rgb.txt, depth.txt,
 groundtruth.txt as T_world_cam) plus masks/ (8-bit, 255 = pixel on a moving object),

@@ -20,6 +20,9 @@ Sequences (:data:`SEQUENCES`):
 * ``crowd``: for long runs (drift over hundreds of frames): hand-held camera panning slowly
   back and forth (+-20 deg over 24 s) and three persons walking on their own paths at 1.2-3.0 m,
   each 0.5-0.6 m wide, so that at times they cover half the image.
+* ``crowd-close``: as ``crowd``, but two of the three persons come close (0.9-1.8 m) and each
+  walks into the view, stands there for seconds, walks out and waits out of view: people who
+  stand still long enough to look static, then move, over up to half the image or more.
 
 The ground-truth relative motion of a pair (ref, cur) = frames (k, k+1) is
 ``T_cur_ref = inv(T_world_cur) @ T_world_ref`` (:meth:`SyntheticSequence.relative_pose`).
@@ -43,7 +46,7 @@ __all__ = [
 ]
 
 FPS = 30.0
-SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast", "crowd")
+SEQUENCES = ("seq0", "seq1", "seq2", "seq3", "handheld-fast", "crowd", "crowd-close")
 
 
 def rot_x(a: float) -> np.ndarray:
@@ -141,6 +144,9 @@ class Walk:
     Position ``a + s(t) (b - a)`` with ``s = (1 - cos(2 pi t / period + phase)) / 2``
     (smooth turns at the ends); the body turns to face the walking direction
     plus ``yaw`` (rad) and sways by ``sway`` rad. Peak speed ``pi |b - a| / period``.
+    ``dwell`` in [0, 0.5): the fraction of each period spent standing at each end (the cycle from
+    ``phase``: standing at ``a``, walking to ``b``, standing there, walking back); each walk is the
+    half-cosine from rest to rest, so the peak speed becomes ``pi |b - a| / ((1 - 2 dwell) period)``.
     """
     a: tuple
     b: tuple
@@ -148,11 +154,27 @@ class Walk:
     phase: float = 0.0
     yaw: float = 0.0
     sway: float = math.radians(8.0)
+    dwell: float = 0.0
+
+    def _progress(self, t: float) -> float:
+        """s(t) in [0, 1]: how far along a -> b the body centre is at time t (seconds)."""
+        w = 2 * np.pi / self.period
+        if self.dwell == 0.0:
+            return 0.5 * (1 - math.cos(w * t + self.phase))
+        u = ((w * t + self.phase) / (2 * np.pi)) % 1.0      # where in the cycle, [0, 1)
+        d, half = self.dwell, 0.5
+        if u < d:                                            # standing at a
+            return 0.0
+        if u < half:                                         # walking a -> b
+            return 0.5 * (1 - math.cos(np.pi * (u - d) / (half - d)))
+        if u < half + d:                                     # standing at b
+            return 1.0
+        return 0.5 * (1 + math.cos(np.pi * (u - half - d) / (half - d)))   # walking b -> a
 
     def pose(self, t: float) -> np.ndarray:
         a, b = np.asarray(self.a, float), np.asarray(self.b, float)
         w = 2 * np.pi / self.period
-        s = 0.5 * (1 - math.cos(w * t + self.phase))
+        s = self._progress(t)
         p = a + s * (b - a)
         heading = math.atan2(b[0] - a[0], b[2] - a[2])
         ang = heading + self.yaw + self.sway * math.sin(2 * w * t + self.phase)
@@ -242,6 +264,16 @@ def make_sequence(name: str, frames: int = 300, seed: int = 0, *, camera: Camera
             side = 1.0 if n % 2 == 0 else -1.0
             add_person(Walk((-1.6 * side, yc, z0), (1.6 * side, yc, z1), period=rng.uniform(6.0, 10.0),
                             phase=rng.uniform(0, 2 * np.pi)),
+                       "cylinder" if n % 2 == 0 else "box", width=rng.uniform(0.5, 0.6), depth=0.3)
+    elif name == "crowd-close":
+        cam = Sweep(Handheld(seed=seed, base=tuple(map(tuple, base))))
+        for n in range(3):
+            # each walks in from outside the view to a spot in it, stands there for seconds and
+            # walks out again (on its own path, not following the camera); the first two close
+            z0, z1 = rng.uniform(0.9, 1.3) + 0.5 * n, rng.uniform(0.9, 1.3) + 0.5 * n
+            side = 1.0 if n % 2 == 0 else -1.0
+            add_person(Walk((-1.8 * side, yc, z0), (rng.uniform(-0.3, 0.3), yc, z1), period=rng.uniform(8.0, 14.0),
+                            phase=rng.uniform(0, 2 * np.pi), dwell=rng.uniform(0.15, 0.3)),
                        "cylinder" if n % 2 == 0 else "box", width=rng.uniform(0.5, 0.6), depth=0.3)
     else:  # handheld-fast
         cam = Handheld(seed=seed, speed=1.6, base=tuple(map(tuple, base)))
