@@ -724,6 +724,10 @@ def test_drift_quick_with_a_policy_change(tmp_path):
     assert all(np.isfinite(r["ate"]) for r in rows)
     # the single-thread flag is for the script's own process and its workers, not its caller's
     assert os.environ.get("XLA_FLAGS") == flags
+    # --scene: the same rows for the sequence with persons standing close
+    close = drift.run_crowd((0, 12, "160x120", None, "refined", "crowd-close"))
+    assert [r["data"] for r in close] == ["synthetic crowd-close 12 frames 160x120"] * 2
+    assert all(np.isfinite(r["ate"]) for r in close) and close[0]["moving_max"] > 0
 
 
 def test_drift_policy_is_checked(capsys):
