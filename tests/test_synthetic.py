@@ -195,6 +195,8 @@ def test_walk_dwell_stands_at_each_end_then_walks_from_rest_to_rest():
     # middle of the walk about 10 ms x pi |b - a| / 4 s
     step = lambda t: np.linalg.norm(walk.pose(t + 0.01)[:3, 3] - walk.pose(t)[:3, 3])
     assert step(2.0) < 1e-3 and step(2.99) == pytest.approx(0.01 * math.pi * math.sqrt(5) / 4, rel=1e-3)
+    with pytest.raises(ValueError, match="dwell"):
+        Walk(a, b, dwell=0.5)
     plain = Walk(a, b, period=8.0, phase=0.3)
     for t in (0.0, 1.7, 5.2):
         s = 0.5 * (1 - math.cos(2 * math.pi * t / 8.0 + 0.3))

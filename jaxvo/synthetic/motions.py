@@ -156,6 +156,11 @@ class Walk:
     sway: float = math.radians(8.0)
     dwell: float = 0.0
 
+    def __post_init__(self):
+        # each walk needs part of the half period: 0.5 would leave none (and divide by zero)
+        if not 0.0 <= self.dwell < 0.5:
+            raise ValueError(f"Walk.dwell must be in [0, 0.5), got {self.dwell}")
+
     def _progress(self, t: float) -> float:
         """s(t) in [0, 1]: how far along a -> b the body centre is at time t (seconds)."""
         w = 2 * np.pi / self.period
