@@ -351,6 +351,12 @@ class TrackConfig(NamedTuple):
     #: scene is the majority the weights stay the map's probability, so a sequence that starts
     #: with people in view, before the map has evidence, is not led onto them.
     trust_share: Annotated[float, real(0, 1)] = 0.4
+    #: With the segmentation (``segment``): every this many frames after its reference, a
+    #: frame's valid estimate also runs the segmentation's motion test against the reference at
+    #: that estimate, so that a region the map trusts and that starts to move (a person who
+    #: stood still) is flagged for the next frames; 0: once per reference, where its test had
+    #: no earlier view. docs/decisions/crowd-close.md.
+    motion_retest: Annotated[int, integer(0)] = 1
 
     @classmethod
     def frame_to_frame(cls, **changes) -> "TrackConfig":

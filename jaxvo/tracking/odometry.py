@@ -258,7 +258,7 @@ class Odometry:
         self.key = checked_key(key)
         self.params = segmentation.SegmentParams() if segment_params is None else segment_params
         self.static_map = StaticMap(camera, self.config.max_depth, self.params, self.policy.trust_gain,
-                                    self.policy.trust_share) \
+                                    self.policy.trust_share, self.policy.motion_retest) \
             if self.policy.segment else NoStaticMap()
         self._first = np.eye(4) if T_world_first is None else geometry.checked_transform(T_world_first, "T_world_first")
         self.poses: list = []

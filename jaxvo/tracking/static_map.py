@@ -220,7 +220,9 @@ class StaticMap:
     camera, cue_camera: the intrinsics at the map level (:data:`segmentation.MAP_LEVEL`) and at the
     motion test's level (:data:`segmentation.CUE_LEVEL`). params: :class:`segmentation.SegmentParams`.
     gain, share: how sharply the evidence sets the static weights, and below which share of trusted
-    pixels (:meth:`trust`, ``TrackConfig.trust_gain`` and ``trust_share``).
+    pixels (:meth:`trust`, ``TrackConfig.trust_gain`` and ``trust_share``). retest: every how many
+    frames after the reference an estimate runs the motion test again (``TrackConfig.motion_retest``;
+    0: only a reference tested against no earlier view, once).
     L: (h, w) float32 log-odds that each reference pixel is dynamic (the evidence), at the map level;
     flags: (h, w) bool, its regions flagged dynamic while it is the reference.
     depths: frame index -> map-level depth, for the votes; cues: frame index -> motion-test
@@ -240,8 +242,9 @@ class StaticMap:
     later_motion_test_program = staticmethod(_later_motion_test)
 
     def __init__(self, camera: Camera, max_depth: float, params: segmentation.SegmentParams, gain: float = 1.0,
-                 share: float = 1.0):
+                 share: float = 1.0, retest: int = 0):
         self.params = params
+        self.retest = int(retest)
         self.gain, self.share = float(gain), float(share)
         self._gain = self._share = None   # on the device beside L (add)
         self.max_depth = max_depth
@@ -302,8 +305,11 @@ class StaticMap:
 
     def update(self, est: MotionEstimate, ref: int, j: int, T: np.ndarray) -> None:
         """Add the vote of frame j's valid estimate ``est`` against reference ``ref`` (T: float64
-        T_cur_ref), and once, ``_CUE_AHEAD`` frames after a reference tested against no earlier
-        view that far back, the motion test against frame j."""
+        T_cur_ref), and the motion test against frame j at that estimate: once, ``_CUE_AHEAD``
+        frames after a reference tested against no earlier view that far back, and from then on
+        at every ``retest``-th frame after the reference. A person who stood still while the map
+        learnt it as static and then walks is otherwise trusted until the next reference, and
+        with people close to the camera the estimates follow it (docs/decisions/crowd-close.md)."""
         occluded = _occluded(est)
         # through the host (77 kB at 320x240): from an exported program (jaxvo.runtime.aot) the
         # masks are committed to the device, and a committed input would commit the map
@@ -312,11 +318,12 @@ class StaticMap:
         unexplained = np.asarray(_unexplained(est.inlier_mask, est.valid_mask, occluded, self.L.shape))
         self.L = self.update_program(self.L, self.depths[ref], self.depths[j], as_float32(T), unexplained,
                                      self.camera, self.params)
-        if self.tested < _CUE_AHEAD <= j - ref and self.cue_camera.width >= _CUE_MIN_WIDTH:
+        due = self.tested < _CUE_AHEAD or (self.retest > 0 and (j - ref) % self.retest == 0)
+        if due and _CUE_AHEAD <= j - ref and self.cue_camera.width >= _CUE_MIN_WIDTH:
             self.L, self.flags = self.later_motion_test_program(
                 self.L, self.flags, self.depths[ref], self.cues[ref], self.cues[j], as_float32(T), self.camera,
                 self.params, self.cue_camera)
-            self.tested = j - ref
+            self.tested = max(self.tested, j - ref)
 
     def new_reference(self, old: int, new: int, j: int, history: int, pose: Callable[[int], np.ndarray],
                       valid: Sequence[bool], view_pose: Callable[[int, int, np.ndarray], np.ndarray]) -> None:
