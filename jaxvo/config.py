@@ -355,7 +355,7 @@ class TrackConfig(NamedTuple):
     #: frame's valid estimate also runs the segmentation's motion test against the reference at
     #: that estimate, so that a region the map trusts and that starts to move (a person who
     #: stood still) is flagged for the next frames; 0: once per reference, where its test had
-    #: no earlier view. docs/decisions/crowd-close.md.
+    #: no earlier view. docs/decisions/motion-retest.md.
     motion_retest: Annotated[int, integer(0)] = 1
 
     @classmethod

@@ -309,7 +309,7 @@ class StaticMap:
         frames after a reference tested against no earlier view that far back, and from then on
         at every ``retest``-th frame after the reference. A person who stood still while the map
         learnt it as static and then walks is otherwise trusted until the next reference, and
-        with people close to the camera the estimates follow it (docs/decisions/crowd-close.md)."""
+        with people close to the camera the estimates follow it (docs/decisions/motion-retest.md)."""
         occluded = _occluded(est)
         # through the host (77 kB at 320x240): from an exported program (jaxvo.runtime.aot) the
         # masks are committed to the device, and a committed input would commit the map
